@@ -1,0 +1,1 @@
+"""Config, cycle state machine, PLC handshake, journal, service main, CLI and calibration wizard."""

@@ -1,0 +1,28 @@
+"""The one entry point, ``monoguide``. Each command lives in its own ``cmd_*`` module."""
+
+from __future__ import annotations
+
+import typer
+
+from monoguide.daemon import cmd_detect, cmd_plan, cmd_probe, cmd_simcell, cmd_solve
+
+app = typer.Typer(
+    name="monoguide",
+    help="Vision-guided robotics: measure a large part with a flange camera, write the robot's base offset.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+app.command("solve")(cmd_solve.solve)
+app.command("plan")(cmd_plan.plan)
+app.command("detect")(cmd_detect.detect)
+app.command("probe")(cmd_probe.probe)
+app.command("sim-cell")(cmd_simcell.sim_cell)
+
+
+def main() -> None:
+    app()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,11 @@
+"""`monoguide probe` (placeholder until its issue lands)."""
+
+from __future__ import annotations
+
+import typer
+
+
+def probe() -> None:
+    """Not built yet."""
+    typer.echo("not built yet", err=True)
+    raise typer.Exit(2)

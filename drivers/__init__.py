@@ -1,0 +1,1 @@
+"""Device ports (``typing.Protocol``), their real adapters, and ``drivers/sim`` with simulated devices."""

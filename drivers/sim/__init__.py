@@ -1,0 +1,1 @@
+"""Simulated devices and the simulated cell's one truth. Runtime code never imports this package."""

@@ -1,0 +1,128 @@
+"""The one error hierarchy of monoguide, rooted in :class:`MonoguideError`.
+
+Every failure a user must tell apart is a subclass with a stable string ``code`` (logs, JSON, journal)
+and a stable integer ``plc_code`` (the PLC's error register). The root lives in the solver because the
+solver is the bottom layer: drivers and daemon derive their own failures from it.
+
+Ranges of ``plc_code``: 1xx measurement record, 2xx pose solve, 3xx hole detection, 4xx devices,
+5xx config and offset checks, 6xx cycle.
+"""
+
+from __future__ import annotations
+
+
+class MonoguideError(Exception):
+    """Root of every monoguide failure. ``code`` and ``plc_code`` are stable across releases."""
+
+    code = "MONOGUIDE_ERROR"
+    plc_code = 1
+
+    def __init__(self, message: str) -> None:
+        super().__init__(message)
+        self.message = message
+
+    def as_dict(self) -> dict[str, str]:
+        return {"code": self.code, "message": self.message}
+
+
+# --- measurement record (1xx) -------------------------------------------------------------------
+
+
+class RecordError(MonoguideError):
+    """A measurement record is malformed; the message names the field and the value."""
+
+    code = "RECORD_INVALID"
+    plc_code = 100
+
+
+class UnsupportedFormat(RecordError):
+    code = "RECORD_FORMAT"
+    plc_code = 101
+
+
+class NonFiniteValue(RecordError):
+    code = "RECORD_NONFINITE"
+    plc_code = 102
+
+
+class UnknownReference(RecordError):
+    """An observation names a view or point that does not exist, or repeats a point in a view."""
+
+    code = "RECORD_REFERENCE"
+    plc_code = 103
+
+
+class NotARotation(RecordError):
+    code = "RECORD_NOT_A_ROTATION"
+    plc_code = 104
+
+
+# --- pose solve (2xx) ---------------------------------------------------------------------------
+
+
+class SolveFailed(MonoguideError):
+    code = "SOLVE_FAILED"
+    plc_code = 200
+
+
+class TooFewObservations(SolveFailed):
+    code = "TOO_FEW_OBSERVATIONS"
+    plc_code = 201
+
+
+class NoConvergence(SolveFailed):
+    code = "NO_CONVERGENCE"
+    plc_code = 202
+
+
+class DegenerateGeometry(SolveFailed):
+    """The views do not constrain all six degrees of freedom (e.g. all rays nearly parallel)."""
+
+    code = "DEGENERATE_GEOMETRY"
+    plc_code = 203
+
+
+class PointBehindCamera(SolveFailed):
+    code = "POINT_BEHIND_CAMERA"
+    plc_code = 204
+
+
+class ResidualTooLarge(SolveFailed):
+    code = "RESIDUAL_TOO_LARGE"
+    plc_code = 205
+
+
+class UncertaintyTooLarge(SolveFailed):
+    code = "UNCERTAINTY_TOO_LARGE"
+    plc_code = 206
+
+
+# --- hole detection (3xx) -----------------------------------------------------------------------
+
+
+class FeatureNotFound(MonoguideError):
+    """A featured hole could not be measured in an image."""
+
+    code = "FEATURE_NOT_FOUND"
+    plc_code = 300
+
+
+# --- offset checks (5xx) ------------------------------------------------------------------------
+
+
+class OffsetOutOfEnvelope(MonoguideError):
+    """The solved part displacement lies outside the configured envelope: nothing is written."""
+
+    code = "OFFSET_OUT_OF_ENVELOPE"
+    plc_code = 501
+
+
+def all_error_classes() -> list[type[MonoguideError]]:
+    """Every subclass of :class:`MonoguideError` imported so far, the root first."""
+    found: list[type[MonoguideError]] = [MonoguideError]
+    stack: list[type[MonoguideError]] = [MonoguideError]
+    while stack:
+        for sub in stack.pop().__subclasses__():
+            found.append(sub)
+            stack.append(sub)
+    return found
