@@ -107,6 +107,42 @@ class FeatureNotFound(MonoguideError):
     plc_code = 300
 
 
+class HoleNotFound(FeatureNotFound):
+    code = "HOLE_NOT_FOUND"
+    plc_code = 301
+
+
+class HoleCutByBorder(FeatureNotFound):
+    code = "HOLE_CUT_BY_BORDER"
+    plc_code = 302
+
+
+class HoleAmbiguous(FeatureNotFound):
+    """Two or more plausible candidates where one hole is expected: refused rather than guessed."""
+
+    code = "HOLE_AMBIGUOUS"
+    plc_code = 303
+
+
+class LowContrast(FeatureNotFound):
+    """The hole's rim is too blurred or too faint to place it to the required accuracy."""
+
+    code = "LOW_CONTRAST"
+    plc_code = 304
+
+
+class ImageSaturated(FeatureNotFound):
+    code = "IMAGE_SATURATED"
+    plc_code = 305
+
+
+class BadImage(FeatureNotFound):
+    """The image has the wrong shape or dtype, or is empty."""
+
+    code = "BAD_IMAGE"
+    plc_code = 306
+
+
 # --- offset checks (5xx) ------------------------------------------------------------------------
 
 
