@@ -1,0 +1,275 @@
+"""Sub-pixel hole centres in a camera image: find, select, correct for perspective (Sec. 5.3).
+
+- :func:`find_holes` runs the paper's pipeline (:mod:`monoguide.solver.hole_edges`) on every dark blob
+  of plausible size and returns the holes most plausible first.
+- :func:`measure_hole` is the cycle's call: the one hole expected near a position with a size, picked
+  among clutter, or a typed error (not found, cut by the border, ambiguous, low contrast, saturated).
+- :func:`perspective_correction` is the offset from the image of a hole's 3-D centre to the centre of
+  its imaged ellipse, which the two differ by under perspective and lens distortion.
+
+Pixels are raw image coordinates: x right, y down, pixel centres at integers.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from monoguide.solver.camera import CameraModel
+from monoguide.solver.ellipse import fit_ellipse
+from monoguide.solver.errors import (
+    FeatureNotFound,
+    HoleAmbiguous,
+    HoleCutByBorder,
+    HoleNotFound,
+    ImageSaturated,
+    LowContrast,
+)
+from monoguide.solver.hole_edges import SATURATION_GREY, as_grey, measure_rim, seed_dark_blobs
+
+DEFAULT_MIN_RADIUS_PX = 6.0
+DEFAULT_MAX_RADIUS_PX = 80.0
+DEFAULT_RADIUS_TOL = 0.25
+_SAME_HOLE_PX = 2.0
+
+
+@dataclass(frozen=True, eq=False)
+class HoleCandidate:
+    """One measured hole.
+
+    ``center`` (2,) px the centre of the final ellipse (not perspective-corrected); ``axes`` (2,) its
+    semi-axes in px, major first; ``angle_deg`` the major axis from +x toward +y; ``score`` in [0, 1],
+    higher is more plausible. The rest describe the measurement: ``contrast`` (grey levels),
+    ``edge_width_px`` (blur sigma of the rim), ``rms_px`` (edge points about the ellipse),
+    ``n_edge_points``.
+    """
+
+    center: np.ndarray
+    axes: np.ndarray
+    angle_deg: float
+    score: float
+    contrast: float = 0.0
+    edge_width_px: float = 0.0
+    rms_px: float = 0.0
+    n_edge_points: int = 0
+
+    @property
+    def mean_radius(self) -> float:
+        """Radius of the circle of the same area, sqrt(a b) px."""
+        return math.sqrt(float(self.axes[0] * self.axes[1]))
+
+    def as_dict(self) -> dict[str, object]:
+        """The JSON shape of `monoguide detect`: center, axes, angle_deg, score."""
+        return {
+            "center": [round(float(c), 4) for c in self.center],
+            "axes": [round(float(a), 4) for a in self.axes],
+            "angle_deg": round(self.angle_deg, 3),
+            "score": round(self.score, 4),
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class RefusedBlob:
+    """A dark blob at ``center`` (2,) px of equivalent radius ``radius_px`` that is not a measurable hole,
+    and why (a :class:`FeatureNotFound` subclass whose message names the place)."""
+
+    center: np.ndarray
+    radius_px: float
+    error: FeatureNotFound
+
+
+@dataclass(frozen=True)
+class HoleScan:
+    """Everything one search saw: the holes (most plausible first), the refused dark blobs, and the
+    fraction of saturated pixels in the search region."""
+
+    holes: list[HoleCandidate]
+    refused: list[RefusedBlob]
+    saturated_fraction: float
+
+
+def find_holes(
+    image: np.ndarray,
+    roi: Sequence[int] | None = None,
+    expected_center: Sequence[float] | None = None,
+    expected_radius_px: float | None = None,
+    **options: float,
+) -> list[HoleCandidate]:
+    """All holes whose centre lies in ``roi`` (x, y, w, h) px (the whole image when None), most
+    plausible first. ``expected_center`` (2,) and ``expected_radius_px`` raise the score of holes near
+    that place and size. ``options`` go to :func:`scan_holes`. Raises :class:`BadImage` only."""
+    return scan_holes(image, roi, expected_center, expected_radius_px, **options).holes
+
+
+def scan_holes(
+    image: np.ndarray,
+    roi: Sequence[int] | None = None,
+    expected_center: Sequence[float] | None = None,
+    expected_radius_px: float | None = None,
+    *,
+    min_radius_px: float = DEFAULT_MIN_RADIUS_PX,
+    max_radius_px: float = DEFAULT_MAX_RADIUS_PX,
+    min_contrast: float = 15.0,
+    max_blur_px: float = 3.0,
+    max_saturated_fraction: float = 0.02,
+) -> HoleScan:
+    """:func:`find_holes` with the refused blobs: the Sec. 5.3 pipeline on each dark blob in ``roi``.
+
+    With ``expected_radius_px`` the blob search is limited to 0.6 .. 1.6 times it; otherwise to
+    ``min_radius_px .. max_radius_px``. A hole is refused when its rim is below ``min_contrast`` grey
+    levels, blurred beyond ``max_blur_px`` sigma, or more than ``max_saturated_fraction`` saturated.
+    """
+    grey = as_grey(image)
+    box = _roi_box(roi, grey.shape)
+    if expected_radius_px is not None:
+        if not expected_radius_px > 0:
+            raise ValueError(f"expected_radius_px must be positive, got {expected_radius_px}")
+        r_min, r_max = 0.6 * expected_radius_px, 1.6 * expected_radius_px
+    else:
+        r_min, r_max = min_radius_px, max_radius_px
+    x0, y0, x1, y1 = box
+    saturated = float(np.mean(grey[y0:y1, x0:x1] >= SATURATION_GREY))
+    holes: list[HoleCandidate] = []
+    refused: list[RefusedBlob] = []
+    for seed in seed_dark_blobs(grey, box, r_min, r_max, min_contrast):
+        try:
+            rim = measure_rim(grey, seed, min_contrast=min_contrast, max_blur_px=max_blur_px,
+                              max_saturated_fraction=max_saturated_fraction)
+        except FeatureNotFound as exc:
+            refused.append(RefusedBlob(center=seed.center, radius_px=seed.radius_px, error=exc))
+            continue
+        c = rim.ellipse.center
+        if not (x0 - 0.5 <= c[0] < x1 - 0.5 and y0 - 0.5 <= c[1] < y1 - 0.5):
+            continue
+        score = _score(rim.rms_px, rim.valid_fraction, rim.contrast, min_contrast, rim.ellipse.mean_radius,
+                       c, expected_center, expected_radius_px)
+        holes.append(HoleCandidate(center=c, axes=rim.ellipse.axes, angle_deg=rim.ellipse.angle_deg,
+                                   score=score, contrast=rim.contrast, edge_width_px=rim.edge_width_px,
+                                   rms_px=rim.rms_px, n_edge_points=len(rim.edge_points)))
+    holes.sort(key=lambda hole: -hole.score)
+    unique: list[HoleCandidate] = []
+    for hole in holes:  # one hole seen from two seeds (a rim split by glare) is kept once
+        if all(np.hypot(*(hole.center - kept.center)) > _SAME_HOLE_PX for kept in unique):
+            unique.append(hole)
+    return HoleScan(holes=unique, refused=refused, saturated_fraction=saturated)
+
+
+def measure_hole(
+    image: np.ndarray,
+    expected_center: Sequence[float],
+    expected_radius_px: float,
+    roi: Sequence[int] | None = None,
+    *,
+    max_offset_px: float | None = None,
+    radius_tol: float = DEFAULT_RADIUS_TOL,
+    **options: float,
+) -> HoleCandidate:
+    """The one hole expected at ``expected_center`` (2,) px with radius ``expected_radius_px``.
+
+    Candidates are the holes whose centre lies in ``roi`` (x, y, w, h) (default: a square of
+    +-(``max_offset_px`` + 2 r) around the expectation), within ``max_offset_px`` of it (default 3 r),
+    and whose mean radius is within ``radius_tol`` of the expected one. Exactly one must remain:
+    none raises :class:`HoleNotFound` (or, when the blob that would have been it was refused,
+    :class:`HoleCutByBorder`, :class:`LowContrast` or :class:`ImageSaturated`); two or more raise
+    :class:`HoleAmbiguous` rather than guess.
+    """
+    ex, ey = float(expected_center[0]), float(expected_center[1])
+    r = float(expected_radius_px)
+    max_offset = 3.0 * r if max_offset_px is None else float(max_offset_px)
+    if roi is None:
+        half = max_offset + 2.0 * r
+        roi = (math.floor(ex - half), math.floor(ey - half), int(2 * half) + 2, int(2 * half) + 2)
+    where = f"hole expected at ({ex:.1f}, {ey:.1f}) r={r:.1f} px"
+    scan = scan_holes(image, roi, (ex, ey), r, **options)
+    plausible = [h for h in scan.holes
+                 if abs(h.mean_radius / r - 1.0) <= radius_tol and math.hypot(h.center[0] - ex, h.center[1] - ey)
+                 <= max_offset]
+    if len(plausible) == 1:
+        return plausible[0]
+    if len(plausible) > 1:
+        listed = "; ".join(
+            f"({h.center[0]:.1f}, {h.center[1]:.1f}) r={h.mean_radius:.1f} score {h.score:.2f}" for h in plausible)
+        raise HoleAmbiguous(f"{where}: {len(plausible)} candidates within {max_offset:.0f} px and "
+                            f"{100 * radius_tol:.0f} % of the radius: {listed}")
+    for blob in scan.refused:  # the refused blob that would have been the hole says why
+        near = math.hypot(blob.center[0] - ex, blob.center[1] - ey) <= max_offset + r
+        if near and isinstance(blob.error, HoleCutByBorder | LowContrast | ImageSaturated):
+            raise type(blob.error)(f"{where}: {blob.error.message}")
+    if scan.saturated_fraction > 0.5:
+        raise ImageSaturated(f"{where}: {100 * scan.saturated_fraction:.0f} % of the search region is saturated")
+    seen = ", ".join(f"({h.center[0]:.1f}, {h.center[1]:.1f}) r={h.mean_radius:.1f}" for h in scan.holes[:5])
+    raise HoleNotFound(f"{where}: no hole within {max_offset:.0f} px and {100 * radius_tol:.0f} % of the radius"
+                       + (f"; seen {seen}" if seen else "; nothing dark of that size in the search region"))
+
+
+def perspective_correction(
+    camera: CameraModel,
+    T_c_w: np.ndarray,
+    center_w: np.ndarray,
+    normal_w: np.ndarray,
+    radius_mm: float,
+    n_points: int = 360,
+) -> np.ndarray:
+    """(centre of the imaged ellipse) - (image of the 3-D centre), (2,) px.
+
+    Subtract it from a measured ellipse centre to get the image of the hole's centre. The rim circle
+    (``center_w`` (3,), ``normal_w`` (3,) in the part frame, ``T_c_w`` (4, 4) an approximate pose) is
+    projected exactly, distortion included, at ``n_points`` points, and the same least-squares ellipse
+    as the detector's is fitted to them. Without distortion this is the centre of the projected conic.
+    """
+    center_w = np.asarray(center_w, dtype=float)
+    normal = np.asarray(normal_w, dtype=float)
+    normal = normal / np.linalg.norm(normal)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(normal, helper)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(normal, e1)
+    t = np.linspace(0.0, 2.0 * math.pi, n_points, endpoint=False)
+    rim_w = center_w + radius_mm * (np.cos(t)[:, None] * e1 + np.sin(t)[:, None] * e2)
+    R, tr = T_c_w[:3, :3], T_c_w[:3, 3]
+    rim_c = rim_w @ R.T + tr
+    if np.any(rim_c[:, 2] <= 0):
+        raise ValueError(f"hole at {np.round(center_w, 3).tolist()} mm is not in front of the camera")
+    ellipse = fit_ellipse(camera.project(rim_c))
+    return ellipse.center - camera.project((R @ center_w + tr)[None, :])[0]
+
+
+# --- private helpers -----------------------------------------------------------------------------
+
+
+def _roi_box(roi: Sequence[int] | None, shape: tuple[int, ...]) -> tuple[int, int, int, int]:
+    """ROI (x, y, w, h) -> (x0, y0, x1, y1) clipped to the image; raises if nothing is left."""
+    h, w = shape[:2]
+    if roi is None:
+        return 0, 0, w, h
+    if len(roi) != 4:
+        raise ValueError(f"roi must be (x, y, w, h), got {tuple(roi)}")
+    x, y, rw, rh = (int(v) for v in roi)
+    box = (max(x, 0), max(y, 0), min(x + rw, w), min(y + rh, h))
+    if box[2] - box[0] < 4 or box[3] - box[1] < 4:
+        raise ValueError(f"roi {tuple(roi)} leaves less than 4 x 4 px of the {w} x {h} image")
+    return box
+
+
+def _score(
+    rms_px: float,
+    valid_fraction: float,
+    contrast: float,
+    min_contrast: float,
+    radius: float,
+    center: np.ndarray,
+    expected_center: Sequence[float] | None,
+    expected_radius: float | None,
+) -> float:
+    """Plausibility in [0, 1]: a clean elliptic rim with contrast, near the expected place and size."""
+    score = math.exp(-((rms_px / 0.3) ** 2)) * valid_fraction * min(1.0, contrast / (3.0 * min_contrast))
+    if expected_radius is not None:
+        score *= math.exp(-0.5 * ((radius / expected_radius - 1.0) / 0.15) ** 2)
+    if expected_center is not None:
+        scale = 3.0 * (expected_radius if expected_radius is not None else radius)
+        d = math.hypot(center[0] - expected_center[0], center[1] - expected_center[1])
+        score *= math.exp(-0.5 * (d / scale) ** 2)
+    return float(score)
