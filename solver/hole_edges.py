@@ -28,6 +28,7 @@ from monoguide.solver.errors import (
     ImageSaturated,
     LowContrast,
 )
+from monoguide.solver.rim_fit import refine_ellipse_photometric
 
 SATURATION_GREY = 254.5
 """Grey value (0-255 scale) at or above which a pixel counts as saturated."""
@@ -50,13 +51,15 @@ class Seed:
 class RimMeasurement:
     """The result of the Sec. 5.3 pipeline for one hole.
 
-    ``ellipse`` the final fit; ``initial`` the fit to the one-pixel edge; ``edge_points`` (n, 2) the
+    ``ellipse`` the final fit; ``paper`` the final least-squares ellipse of Sec. 5.3 (the same as
+    ``ellipse`` unless refined photometrically); ``initial`` the fit to the one-pixel edge; ``edge_points`` (n, 2) the
     sub-pixel rim points used; ``rms_px`` their RMS distance from ``ellipse``; ``contrast`` sheet minus
     hole grey level; ``edge_width_px`` the Gaussian sigma of the rim's grey-level profile (blur);
     ``saturated_fraction`` of the pixels near the rim; ``valid_fraction`` of the rays that gave a point.
     """
 
     ellipse: Ellipse
+    paper: Ellipse
     initial: Ellipse
     edge_points: np.ndarray
     rms_px: float
@@ -136,8 +139,10 @@ def measure_rim(
     min_contrast: float = 15.0,
     max_blur_px: float = 3.0,
     max_saturated_fraction: float = 0.02,
+    photometric: bool = True,
 ) -> RimMeasurement:
-    """Run the Sec. 5.3 pipeline on the hole at ``seed`` in ``grey`` (h, w) float32.
+    """Run the Sec. 5.3 pipeline on the hole at ``seed`` in ``grey`` (h, w) float32; with ``photometric``
+    refine its ellipse on the rim's grey levels (:mod:`monoguide.solver.rim_fit`).
 
     Raises :class:`HoleCutByBorder`, :class:`ImageSaturated`, :class:`LowContrast` or
     :class:`HoleNotFound` (the dark region is no hole: it runs away, or no ellipse fits it).
@@ -175,7 +180,10 @@ def measure_rim(
     except FeatureNotFound as exc:
         raise HoleNotFound(f"{where}: {exc.message}") from exc
     rms = float(np.sqrt(np.mean(final.distances(points[keep]) ** 2)))
-    return RimMeasurement(ellipse=final, initial=initial, edge_points=points[keep], rms_px=rms,
+    paper = final
+    if photometric:
+        final, _ = refine_ellipse_photometric(grey, paper, edge_width, SATURATION_GREY)
+    return RimMeasurement(ellipse=final, paper=paper, initial=initial, edge_points=points[keep], rms_px=rms,
                           contrast=contrast, edge_width_px=edge_width, saturated_fraction=saturated,
                           valid_fraction=float(keep.sum()) / len(valid))
 

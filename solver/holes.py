@@ -115,12 +115,14 @@ def scan_holes(
     min_contrast: float = 15.0,
     max_blur_px: float = 3.0,
     max_saturated_fraction: float = 0.02,
+    photometric: bool = True,
 ) -> HoleScan:
     """:func:`find_holes` with the refused blobs: the Sec. 5.3 pipeline on each dark blob in ``roi``.
 
     With ``expected_radius_px`` the blob search is limited to 0.6 .. 1.6 times it; otherwise to
     ``min_radius_px .. max_radius_px``. A hole is refused when its rim is below ``min_contrast`` grey
     levels, blurred beyond ``max_blur_px`` sigma, or more than ``max_saturated_fraction`` saturated.
+    ``photometric=False`` stops at the paper's final ellipse instead of refining it on the grey levels.
     """
     grey = as_grey(image)
     box = _roi_box(roi, grey.shape)
@@ -137,7 +139,7 @@ def scan_holes(
     for seed in seed_dark_blobs(grey, box, r_min, r_max, min_contrast):
         try:
             rim = measure_rim(grey, seed, min_contrast=min_contrast, max_blur_px=max_blur_px,
-                              max_saturated_fraction=max_saturated_fraction)
+                              max_saturated_fraction=max_saturated_fraction, photometric=photometric)
         except FeatureNotFound as exc:
             refused.append(RefusedBlob(center=seed.center, radius_px=seed.radius_px, error=exc))
             continue

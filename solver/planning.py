@@ -8,10 +8,15 @@ paper recommends about a quarter of the image from the edge.
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+
 import numpy as np
 
 from monoguide.solver import frames
 from monoguide.solver.camera import CameraModel
+from monoguide.solver.problem import PoseProblem
+from monoguide.solver.uncertainty import predicted_covariance
 
 # Camera axes in the part frame when looking straight down onto the sheet: x_c = -x_w, y_c = y_w,
 # z_c = -z_w (the orientation of the paper's cell, Sec. 5.2: a 180 deg turn about the part's y axis).
@@ -56,3 +61,69 @@ def look_at_poses(
         point_c = standoff_mm * np.array([x, y, 1.0])
         poses.append(frames.make_T(R_w_c, point_w - R_w_c @ point_c))
     return poses
+
+
+@dataclass(frozen=True)
+class UncertaintyMap:
+    """Fig. 5: predicted pose uncertainty per pixel of centre noise, as the holes move outwards.
+
+    offsets_u_px : (nu,) distance of every hole from the image centre along u (outwards), px
+    offsets_v_px : (nv,) the same along v
+    sigma_trans_mm, sigma_rot_deg : (nv, nu) square roots of the traces of the covariance blocks of
+    ``T_s1_w`` for sigma_px = 1 (they scale linearly with the real centre noise)
+    """
+
+    offsets_u_px: np.ndarray
+    offsets_v_px: np.ndarray
+    sigma_trans_mm: np.ndarray
+    sigma_rot_deg: np.ndarray
+
+
+def uncertainty_map(
+    camera: CameraModel,
+    points_w: np.ndarray,
+    standoff_mm: float,
+    steps: int = 25,
+    margin_px: float = 40.0,
+) -> UncertaintyMap:
+    """Predicted uncertainty (Eq. 29 at sigma_px = 1) with every hole moved by the same distance from
+    the image centre, outwards (as :func:`quarter_targets`), over a ``steps`` x ``steps`` grid that
+    stops ``margin_px`` short of the image border. This is the simulation behind the paper's Fig. 5."""
+    points_w = np.asarray(points_w, dtype=float).reshape(-1, 3)
+    centre = np.array([(camera.width - 1) / 2.0, (camera.height - 1) / 2.0])
+    signs = np.sign(quarter_targets(camera, points_w) - centre)
+    # At the centre itself every line of sight is parallel to the sheet normal and the distance to
+    # the part is unobservable: the map starts one step out.
+    offsets_u = np.linspace(0.0, camera.width / 2.0 - margin_px, steps + 1)[1:]
+    offsets_v = np.linspace(0.0, camera.height / 2.0 - margin_px, steps + 1)[1:]
+    sigma_trans = np.empty((steps, steps))
+    sigma_rot = np.empty((steps, steps))
+    for iv, dv in enumerate(offsets_v):
+        for iu, du in enumerate(offsets_u):
+            targets = centre + signs * np.array([du, dv])
+            covariance = layout_covariance(camera, points_w, look_at_poses(points_w, camera, standoff_mm, targets))
+            sigma_rot[iv, iu] = math.degrees(math.sqrt(np.trace(covariance[:3, :3])))
+            sigma_trans[iv, iu] = math.sqrt(np.trace(covariance[3:, 3:]))
+    return UncertaintyMap(offsets_u, offsets_v, sigma_trans, sigma_rot)
+
+
+def layout_covariance(
+    camera: CameraModel,
+    points_w: np.ndarray,
+    T_w_si: list[np.ndarray],
+    sigma_px: float = 1.0,
+    view_sigma_mm: float = 0.0,
+    view_sigma_deg: float = 0.0,
+) -> np.ndarray:
+    """Predicted covariance (6, 6) of ``T_s1_w`` for a layout where view i sees point i from ``T_w_si[i]``
+    (the part at its reference pose)."""
+    T_s1_w0 = frames.invert(T_w_si[0])
+    T_s1_si = np.stack([T_s1_w0 @ T for T in T_w_si])
+    n = len(points_w)
+    pixels = np.stack(
+        [camera.project(frames.transform_points(frames.invert(T_w_si[i]), points_w[i : i + 1]))[0] for i in range(n)]
+    )
+    problem = PoseProblem(
+        camera, points_w, T_s1_si, np.arange(n), np.arange(n), pixels, T_s1_w0, sigma_px, view_sigma_mm, view_sigma_deg
+    )
+    return predicted_covariance(problem, T_s1_w0)

@@ -145,7 +145,10 @@ def _matrix(value: Any, where: str, columns: int, rows: int | None = None) -> np
 
 
 def _transform(value: Any, where: str) -> np.ndarray:
-    return frames.check_transform(_matrix(value, where, columns=4, rows=4), where)
+    """A checked 4x4 transform, its rotation snapped to the nearest orthonormal one (records print
+    matrices to a few decimals)."""
+    T = frames.check_transform(_matrix(value, where, columns=4, rows=4), where)
+    return frames.make_T(frames.orthonormalize(T[:3, :3]), T[:3, 3])
 
 
 def _positive(value: Any, where: str, allow_zero: bool = False) -> float:

@@ -1,0 +1,132 @@
+"""The one place where the cell's devices are built from its config, real or simulated.
+
+Runtime code asks this module for a :class:`~monoguide.drivers.camera.Camera` or a
+:class:`~monoguide.drivers.tracker.LaserTracker` and never learns which back-end it holds. The simulated
+back-ends read a :class:`SimCell` built here from the same config; the simulated tracker runs as its own
+process (``monoguide sim-cell``), which writes where it listens into a small JSON state file.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from monoguide.daemon.config import CellConfig, default_sim_state_file
+from monoguide.drivers.camera import Camera, CameraSettings
+from monoguide.drivers.errors import ConfigError, DeviceNotFound
+from monoguide.drivers.genicam_camera import GenICamCamera
+from monoguide.drivers.sim.camera import SimCamera
+from monoguide.drivers.sim.cell import SimCell, SimCellSpec, SimTarget
+from monoguide.drivers.tracker import LaserTracker, SerialLaserTracker
+
+SIM_STATE_FORMAT = "monoguide.sim-cell-state/1"
+
+
+def camera_settings(config: CellConfig) -> CameraSettings:
+    """The settings the cell wants on its camera (from ``[camera]``)."""
+    c = config.camera
+    return CameraSettings(c.pixel_format, c.exposure_us, c.gain_db, c.region)
+
+
+def build_camera(config: CellConfig, sim_cell: SimCell | None = None) -> Camera:
+    """The cell's camera, not yet opened. The simulated one reads ``sim_cell`` (built from config if None)."""
+    c = config.camera
+    if c.backend == "genicam":
+        assert c.cti is not None  # the config loader insists
+        return GenICamCamera(c.cti, serial=c.serial, user_name=c.user_name)
+    return SimCamera(sim_cell if sim_cell is not None else build_sim_cell(config))
+
+
+def build_tracker(config: CellConfig, state_file: Path | None = None) -> LaserTracker:
+    """The cell's laser tracker, not yet opened. The simulated one is found through the state file of a
+    running ``monoguide sim-cell``."""
+    t = config.tracker
+    if t is None:
+        raise ConfigError(f"{config.path}: no [tracker] section")
+    if t.backend == "serial":
+        assert t.port is not None  # the config loader insists
+        return SerialLaserTracker(t.port, t.baud, t.timeout_s)
+    path = state_file or sim_state_file(config)
+    port = read_sim_state(path).get("tracker", {}).get("port")
+    if not port:
+        raise DeviceNotFound(f"simulated tracker: {path} names no tracker port")
+    return SerialLaserTracker(port, t.baud, t.timeout_s)
+
+
+def sim_cell_spec(config: CellConfig) -> SimCellSpec:
+    """The simulated cell's definition from the cell config (``[sim]`` with the shared sections)."""
+    sim = config.sim
+    if sim is None:
+        raise ConfigError(f"{config.path}: the simulated cell needs a [sim] section")
+    if config.reference.T_cf_b is None:
+        raise ConfigError(f"{config.path}: [reference] T_cf_b: the simulated robot needs its base pose")
+    return SimCellSpec(
+        camera=config.camera.intrinsics,
+        points_w=config.part.points_w,
+        hole_radius_mm=config.part.hole_radius_mm,
+        T_cf_w0=config.reference.T_cf_w0,
+        T_cf_b=config.reference.T_cf_b,
+        T_cf_si=tuple(p.T_cf_si for p in config.measuring_poses),
+        T_f_c=sim.T_f_c,
+        point_names=config.part.point_names,
+        T_cf_tracker=sim.T_cf_tracker,
+        seed=sim.seed,
+        deviation_translation_mm=sim.deviation_translation_mm,
+        deviation_rotation_deg=sim.deviation_rotation_deg,
+        repeatability_mm=sim.repeatability_mm,
+        repeatability_deg=sim.repeatability_deg,
+        tracker_noise_mm=sim.tracker_noise_mm,
+        exposure_us_nominal=sim.exposure_us_nominal,
+        benchmarks_cf=dict(sim.benchmarks),
+        tool_smr_f=sim.tool_smr_f,
+        targets=tuple(SimTarget(t.name, t.T_cf_t, t.points_t) for t in sim.targets),
+    )
+
+
+def build_sim_cell(config: CellConfig) -> SimCell:
+    """A fresh simulated cell (seeded from ``[sim] seed``)."""
+    return SimCell(sim_cell_spec(config))
+
+
+def sim_state_file(config: CellConfig) -> Path:
+    """Where ``sim-cell`` writes (and ``probe`` reads) where the simulated devices listen."""
+    if config.sim is not None and config.sim.state_file is not None:
+        return config.sim.state_file
+    return default_sim_state_file()
+
+
+def write_sim_state(path: Path, state: dict[str, Any]) -> None:
+    """Write the state file atomically (a reader never sees half a file)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps({"format": SIM_STATE_FORMAT, **state}, indent=1))
+    os.replace(tmp, path)
+
+
+def read_sim_state(path: Path) -> dict[str, Any]:
+    """The state of a running ``monoguide sim-cell``; :class:`DeviceNotFound` when there is none."""
+    try:
+        state = json.loads(Path(path).read_text())
+    except FileNotFoundError as exc:
+        raise DeviceNotFound(f"no simulated cell running: {path} does not exist (start `monoguide sim-cell`)") \
+            from exc
+    except (OSError, ValueError) as exc:
+        raise DeviceNotFound(f"simulated cell state {path} unreadable: {exc}") from exc
+    if state.get("format") != SIM_STATE_FORMAT:
+        raise DeviceNotFound(f"{path}: not a sim-cell state file (format {state.get('format')!r})")
+    pid = state.get("pid")
+    if isinstance(pid, int) and not _alive(pid):
+        raise DeviceNotFound(f"simulated cell of {path} (pid {pid}) is no longer running")
+    return state
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True

@@ -1,0 +1,129 @@
+"""The simulated flange camera: renders the part's featured holes as the cell's truth has them.
+
+Each :meth:`SimCamera.grab` renders the holes of the current part (``SimCell.T_cf_w_true``) seen from the
+robot's actual pose (``SimCell.actual_camera_pose()``) through the cell's camera model, with the hole
+renderer's blur, noise and uneven light. Exposure and gain change the brightness. It can be told to fail
+(:meth:`SimCamera.fail_next`): ``timeout``, ``disconnect``, ``black`` frame, hole ``occluded``, ``glare``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import replace
+
+import cv2
+import numpy as np
+
+from monoguide.drivers.camera import CameraIdentity, CameraSettings, Frame
+from monoguide.drivers.errors import DeviceDisconnected, DeviceSettingRejected, DeviceTimeout
+from monoguide.drivers.sim.cell import SimCell
+from monoguide.drivers.sim.hole_renderer import Glare, HoleSpec, RenderedView, RenderSettings, render_view
+
+log = logging.getLogger(__name__)
+
+FAILURES = ("timeout", "disconnect", "black", "occluded", "glare")
+MAX_SIM_TIMEOUT_S = 0.2  # a simulated timeout waits at most this long before raising
+
+
+class SimCamera:
+    """:class:`~monoguide.drivers.camera.Camera` reading a :class:`SimCell`. ``last_view`` keeps the last
+    rendering's ground truth (``centers_px`` in full-sensor pixels, ``in_view``)."""
+
+    def __init__(self, cell: SimCell, render: RenderSettings | None = None, seed: int | None = None) -> None:
+        self.cell = cell
+        self.render = render or RenderSettings()
+        self.rng = np.random.default_rng(cell.spec.seed + 1 if seed is None else seed)
+        self.settings = CameraSettings()
+        self.last_view: RenderedView | None = None
+        self._open = False
+        self._frames = 0
+        self._failures: list[str] = []
+        self._identity = CameraIdentity("monoguide", "SimCamera", f"SIM-{cell.spec.seed}", None, "1.0")
+
+    @property
+    def identity(self) -> CameraIdentity | None:
+        return self._identity if self._open else None
+
+    def open(self) -> CameraIdentity:
+        self._open = True
+        self._frames = 0
+        return self._identity
+
+    def configure(self, settings: CameraSettings) -> None:
+        self._require_open()
+        if settings.pixel_format != "Mono8":
+            raise DeviceSettingRejected(f"sim camera: pixel format {settings.pixel_format!r}; it offers ['Mono8']")
+        cam = self.cell.camera
+        if settings.region is not None:
+            ox, oy, w, h = settings.region
+            if ox < 0 or oy < 0 or w <= 0 or h <= 0 or ox + w > cam.width or oy + h > cam.height:
+                raise DeviceSettingRejected(f"sim camera: region {settings.region} outside the "
+                                            f"{cam.width} x {cam.height} sensor")
+        self.settings = settings
+
+    def fail_next(self, failure: str, count: int = 1) -> None:
+        """Make the next ``count`` grabs fail with ``failure`` (one of :data:`FAILURES`)."""
+        if failure not in FAILURES:
+            raise ValueError(f"failure {failure!r} must be one of {FAILURES}")
+        self._failures.extend([failure] * count)
+
+    def grab(self, timeout_s: float) -> Frame:
+        self._require_open()
+        failure = self._failures.pop(0) if self._failures else None
+        if failure == "timeout":
+            time.sleep(min(timeout_s, MAX_SIM_TIMEOUT_S))
+            raise DeviceTimeout(f"sim camera: no frame within {timeout_s:g} s (simulated)")
+        if failure == "disconnect":
+            self._open = False
+            raise DeviceDisconnected("sim camera: device gone (simulated unplug)")
+        view = self._render(failure)
+        self.last_view = view
+        image = view.image
+        if self.settings.region is not None:
+            ox, oy, w, h = self.settings.region
+            image = image[oy : oy + h, ox : ox + w]
+        self._frames += 1
+        return Frame(np.ascontiguousarray(image), self._frames, time.time(), "Mono8")
+
+    def close(self) -> None:
+        self._open = False
+
+    # --- private -------------------------------------------------------------------------------
+
+    def _render(self, failure: str | None) -> RenderedView:
+        cell = self.cell
+        holes = [HoleSpec(center_w=p, radius_mm=cell.spec.hole_radius_mm) for p in cell.spec.points_w]
+        settings = replace(self.render, exposure=self._exposure_factor(failure))
+        T_c_w = cell.T_c_w_true()
+        if failure == "glare":
+            centre = _first_in_image(cell, T_c_w, holes)
+            settings = replace(settings, glare=Glare(center_px=centre, sigma_px=60.0, peak_grey=400.0))
+        view = render_view(cell.camera, T_c_w, holes, settings, self.rng)
+        if failure == "occluded":
+            # something (a cable, a gripper finger) lies over the hole: sheet-grey disc at the hole
+            r = int(3.0 * cell.spec.hole_radius_mm * cell.camera.fx / max(float(T_c_w[2, 3]), 1.0)) + 8
+            grey = int(np.clip(settings.sheet_grey * settings.exposure, 0, 255))
+            for (u, v), seen in zip(view.centers_px, view.in_view, strict=True):
+                if seen:
+                    cv2.circle(view.image, (round(u), round(v)), r, grey, thickness=-1)
+        return view
+
+    def _exposure_factor(self, failure: str | None) -> float:
+        if failure == "black":
+            return 0.0
+        exposure_us = self.settings.exposure_us or self.cell.spec.exposure_us_nominal
+        gain = 10.0 ** ((self.settings.gain_db or 0.0) / 20.0)
+        return exposure_us / self.cell.spec.exposure_us_nominal * gain * self.render.exposure
+
+    def _require_open(self) -> None:
+        if not self._open:
+            raise DeviceDisconnected("sim camera: not open")
+
+
+def _first_in_image(cell: SimCell, T_c_w: np.ndarray, holes: list[HoleSpec]) -> tuple[float, float]:
+    points_c = np.array([(T_c_w @ np.append(h.center_w, 1.0))[:3] for h in holes])
+    px = cell.camera.project(points_c)
+    inside = np.flatnonzero(cell.camera.in_image(px) & (points_c[:, 2] > 0))
+    u, v = px[inside[0]] if len(inside) else (cell.camera.cx, cell.camera.cy)
+    return float(u), float(v)

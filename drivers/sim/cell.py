@@ -1,0 +1,210 @@
+"""The simulated cell's one truth: where the part, the robot, the camera and every SMR really are.
+
+Every simulated device reads a :class:`SimCell`: the camera renders the part at the robot's actual pose,
+the tracker measures the SMR nests the cell lists. Because the truth is known, a simulated run can say
+how far any result is from the perfect one (:meth:`SimCell.T_s1_w_true`). Everything random is drawn
+from the cell's seeded generator unless a generator is passed in.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from monoguide.solver.camera import CameraModel
+from monoguide.solver.frames import compose, invert, make_T, rotvec_to_matrix, transform_points
+
+TARGETS_FORMAT = "monoguide.sim-tracker-targets/1"
+
+
+@dataclass(frozen=True)
+class SimTarget:
+    """A calibration target at ``T_cf_t`` with tracker-measurable points ``points_t`` (m, 3), mm."""
+
+    name: str
+    T_cf_t: np.ndarray
+    points_t: np.ndarray
+
+
+@dataclass(frozen=True)
+class SimCellSpec:
+    """Everything that defines a simulated cell (built from the cell config by ``daemon.assembly``).
+
+    ``T_cf_si`` are the calibrated measuring poses; the simulated robot's taught flange poses follow from
+    them, the robot base ``T_cf_b`` and the true camera mounting ``T_f_c``. Deviation ranges are +- per
+    axis of the part frame (translation mm; rotation deg about the centroid of ``points_w``).
+    Repeatability is a per-axis standard deviation at the flange.
+    """
+
+    camera: CameraModel
+    points_w: np.ndarray
+    hole_radius_mm: float
+    T_cf_w0: np.ndarray
+    T_cf_b: np.ndarray
+    T_cf_si: tuple[np.ndarray, ...]
+    T_f_c: np.ndarray
+    point_names: tuple[str, ...] = ()
+    T_cf_tracker: np.ndarray = field(default_factory=lambda: np.eye(4))
+    seed: int = 0
+    deviation_translation_mm: tuple[float, float, float] = (50.0, 50.0, 5.0)
+    deviation_rotation_deg: tuple[float, float, float] = (0.5, 0.5, 2.0)
+    repeatability_mm: float = 0.05
+    repeatability_deg: float = 0.01
+    tracker_noise_mm: float = 0.025
+    exposure_us_nominal: float = 8000.0
+    benchmarks_cf: dict[str, np.ndarray] = field(default_factory=dict)
+    tool_smr_f: np.ndarray | None = None
+    targets: tuple[SimTarget, ...] = ()
+
+
+class SimCell:
+    """The truth of one simulated cell. Starts with the reference part in place and the robot at
+    measuring pose 0 (with its repeatability noise drawn)."""
+
+    def __init__(self, spec: SimCellSpec) -> None:
+        self.spec = spec
+        self.rng = np.random.default_rng(spec.seed)
+        self._T_cf_w = spec.T_cf_w0.copy()
+        self._T_b_f_actual: dict[int, np.ndarray] = {}
+        self.current_pose = 0
+        self.move_to_measuring_pose(0)
+
+    @property
+    def camera(self) -> CameraModel:
+        return self.spec.camera
+
+    @property
+    def n_measuring_poses(self) -> int:
+        return len(self.spec.T_cf_si)
+
+    # --- the part -------------------------------------------------------------------------------
+
+    @property
+    def T_cf_w_true(self) -> np.ndarray:
+        """Where the current part really lies, in the cell frame (4, 4)."""
+        return self._T_cf_w.copy()
+
+    def new_part(self, rng: np.random.Generator | None = None) -> np.ndarray:
+        """Put a new part in the cell, deviated from the reference by a random draw within the configured
+        ranges; returns its true pose ``T_cf_w``."""
+        rng = rng if rng is not None else self.rng
+        s = self.spec
+        t = rng.uniform(-1.0, 1.0, 3) * np.asarray(s.deviation_translation_mm, dtype=float)
+        r = np.radians(rng.uniform(-1.0, 1.0, 3) * np.asarray(s.deviation_rotation_deg, dtype=float))
+        self.set_part_pose(compose(s.T_cf_w0, part_deviation(r, t, s.points_w.mean(axis=0))))
+        return self.T_cf_w_true
+
+    def reference_part(self) -> np.ndarray:
+        """Put the reference part (the one the grasp path was taught on) back in place."""
+        self.set_part_pose(self.spec.T_cf_w0)
+        return self.T_cf_w_true
+
+    def set_part_pose(self, T_cf_w: np.ndarray) -> None:
+        self._T_cf_w = np.array(T_cf_w, dtype=float)
+
+    def points_cf_true(self) -> np.ndarray:
+        """The featured hole centres of the current part in the cell frame, (n, 3)."""
+        return transform_points(self._T_cf_w, self.spec.points_w)
+
+    # --- the robot and the camera ---------------------------------------------------------------
+
+    def T_b_f_taught(self, i: int) -> np.ndarray:
+        """The taught flange pose of measuring pose ``i`` in the robot base frame."""
+        s = self.spec
+        return compose(invert(s.T_cf_b), s.T_cf_si[self._check_pose(i)], invert(s.T_f_c))
+
+    def move_to_measuring_pose(self, i: int, rng: np.random.Generator | None = None) -> np.ndarray:
+        """The robot goes to measuring pose ``i`` and stops a little off it (repeatability); returns the
+        actual flange pose ``T_b_f``."""
+        rng = rng if rng is not None else self.rng
+        s = self.spec
+        noise = make_T(
+            rotvec_to_matrix(rng.normal(0.0, math.radians(s.repeatability_deg), 3)),
+            rng.normal(0.0, s.repeatability_mm, 3),
+        )
+        self._T_b_f_actual[i] = compose(self.T_b_f_taught(i), noise)
+        self.current_pose = i
+        return self._T_b_f_actual[i].copy()
+
+    def actual_flange_pose(self, i: int | None = None) -> np.ndarray:
+        """``T_b_f`` of the last stop at measuring pose ``i`` (default: where the robot is now)."""
+        i = self.current_pose if i is None else self._check_pose(i)
+        if i not in self._T_b_f_actual:
+            raise ValueError(f"the robot has not been at measuring pose {i} yet")
+        return self._T_b_f_actual[i].copy()
+
+    def actual_camera_pose(self, i: int | None = None) -> np.ndarray:
+        """``T_cf_si`` as it really is at the last stop at measuring pose ``i`` (default: now)."""
+        s = self.spec
+        return compose(s.T_cf_b, self.actual_flange_pose(i), s.T_f_c)
+
+    def T_c_w_true(self, i: int | None = None) -> np.ndarray:
+        """The part in the camera frame at the last stop at measuring pose ``i``: what the camera sees."""
+        return compose(invert(self.actual_camera_pose(i)), self._T_cf_w)
+
+    def T_s1_w_true(self) -> np.ndarray:
+        """The perfect answer of a measurement: the part in the calibrated SF1 (``T_cf_si[0]``)."""
+        return compose(invert(self.spec.T_cf_si[0]), self._T_cf_w)
+
+    def T_s1_w0(self) -> np.ndarray:
+        """The reference part in the calibrated SF1."""
+        return compose(invert(self.spec.T_cf_si[0]), self.spec.T_cf_w0)
+
+    # --- SMRs for the laser tracker -------------------------------------------------------------
+
+    def smr_positions(self) -> dict[str, np.ndarray]:
+        """Every nest the tracker can measure, in the cell frame (mm): the benchmarks, the calibration
+        targets' points (``T1.1``, ...), the featured holes of the current part (``P1``, ...) and the SMR on
+        the flange tool (``TCP``) at the robot's actual pose."""
+        s = self.spec
+        out = {name: np.asarray(p, dtype=float).copy() for name, p in s.benchmarks_cf.items()}
+        for target in s.targets:
+            for k, p in enumerate(transform_points(target.T_cf_t, target.points_t)):
+                out[f"{target.name}.{k + 1}"] = p
+        names = s.point_names or tuple(f"P{k + 1}" for k in range(len(s.points_w)))
+        out.update(zip(names, self.points_cf_true(), strict=True))
+        if s.tool_smr_f is not None:
+            T_cf_f = compose(s.T_cf_b, self.actual_flange_pose())
+            out["TCP"] = transform_points(T_cf_f, np.asarray(s.tool_smr_f, dtype=float).reshape(1, 3))[0]
+        return out
+
+    def tracker_targets(self) -> dict[str, np.ndarray]:
+        """:meth:`smr_positions` in the tracker's own frame, as the tracker measures them."""
+        T_tracker_cf = invert(self.spec.T_cf_tracker)
+        return {k: transform_points(T_tracker_cf, p.reshape(1, 3))[0] for k, p in self.smr_positions().items()}
+
+    def write_tracker_targets(self, path: str | os.PathLike[str], beam_on: str | None = None) -> Path:
+        """Write the tracker's truth for the simulated tracker process (atomically: it re-reads on change)."""
+        path = Path(path)
+        targets = self.tracker_targets()
+        beam_on = beam_on if beam_on is not None else next(iter(targets), None)
+        data = {
+            "format": TARGETS_FORMAT,
+            "noise_mm": self.spec.tracker_noise_mm,
+            "beam_on": beam_on,
+            "nests": {k: [float(v) for v in p] for k, p in targets.items()},
+        }
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(json.dumps(data, indent=1))
+        os.replace(tmp, path)
+        return path
+
+    # --- private --------------------------------------------------------------------------------
+
+    def _check_pose(self, i: int) -> int:
+        if not 0 <= i < len(self.spec.T_cf_si):
+            raise ValueError(f"measuring pose {i} does not exist (the cell has {len(self.spec.T_cf_si)})")
+        return i
+
+
+def part_deviation(rotvec_rad: np.ndarray, translation_mm: np.ndarray, centre_w: np.ndarray) -> np.ndarray:
+    """``T_w0_w`` of a part turned by ``rotvec_rad`` about ``centre_w`` and shifted by ``translation_mm``
+    (all in the reference part's frame)."""
+    R = rotvec_to_matrix(np.asarray(rotvec_rad, dtype=float))
+    c = np.asarray(centre_w, dtype=float)
+    return make_T(R, c - R @ c + np.asarray(translation_mm, dtype=float))

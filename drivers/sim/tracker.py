@@ -1,0 +1,251 @@
+"""The simulated laser tracker: a program behind a pseudo-terminal speaking ``docs/tracker-protocol.md``.
+
+Run as ``python -m monoguide.drivers.sim.tracker --targets TARGETS.json``. It opens a pty, prints
+``LISTEN tracker <slave path>`` on stdout and answers requests until SIGTERM/SIGINT or until its parent
+goes away. The targets file (written by :meth:`monoguide.drivers.sim.cell.SimCell.write_tracker_targets`)
+holds the true SMR centres in the tracker's frame; it is re-read when it changes, so the cell's truth
+can move (a new part, the robot at another pose). Each measurement adds the tracker's noise.
+
+Faults on command (simulator-only request ``SIM:FAULT <mode> [<count>] [<delay_s>]``, or ``--fault``):
+``NOREPLY`` (silence), ``GARBAGE`` (a line that is not the protocol), ``BEAM`` (E200 beam broken),
+``LATE`` (the reply comes ``delay_s`` late), ``NONE``. ``count`` requests are affected (0: until cleared).
+"""
+
+from __future__ import annotations
+
+import argparse
+import heapq
+import json
+import logging
+import math
+import os
+import select
+import signal
+import sys
+import time
+import tty
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from monoguide.drivers.errors import DeviceProtocolError
+from monoguide.drivers.sim.cell import TARGETS_FORMAT
+from monoguide.drivers.tracker_protocol import (
+    CMD_GET_UNIT,
+    CMD_IDENTIFY,
+    CMD_LIST_NESTS,
+    CMD_MEASURE_POINT,
+    CMD_SET_UNIT,
+    CMD_SIM_FAULT,
+    E_BAD_ARGUMENT,
+    E_BEAM_BROKEN,
+    E_MALFORMED,
+    E_UNKNOWN_COMMAND,
+    E_UNKNOWN_NEST,
+    MAX_LINE_BYTES,
+    UNIT_TO_MM,
+    Request,
+    decode_request,
+    encode_error,
+    encode_ok,
+    format_measurement,
+)
+
+log = logging.getLogger("monoguide.sim.tracker")
+
+IDENTITY = "monoguide,SimTracker,SIM-0001,1.0"
+FAULT_MODES = ("NONE", "NOREPLY", "GARBAGE", "BEAM", "LATE")
+SAMPLES_PER_POINT = 10
+GARBAGE_LINE = b"\x15?#\xfe garbled \x00\x07\n"
+
+
+@dataclass
+class TrackerState:
+    """What the simulated tracker knows: the true nest positions (tracker frame, mm) and its settings."""
+
+    nests: dict[str, np.ndarray]
+    noise_mm: float
+    rng: np.random.Generator
+    beam_on: str | None = None
+    unit: str = "MM"
+    measurement_number: int = 0
+    fault: str = "NONE"
+    fault_count: int = 0
+    late_delay_s: float = 3.0
+    scheduled: list[tuple[float, int, bytes]] = field(default_factory=list)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``python -m monoguide.drivers.sim.tracker``."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--targets", type=Path, required=True, help="JSON file with the true nest positions")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--fault", default="NONE", choices=FAULT_MODES)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="sim-tracker: %(message)s")
+
+    nests, noise_mm, beam_on = load_targets(args.targets)
+    state = TrackerState(nests, noise_mm, np.random.default_rng(args.seed), beam_on, fault=args.fault)
+    master, slave = os.openpty()
+    tty.setraw(slave)  # no echo, no line editing: bytes pass as sent
+    stop = _install_stop_handlers()
+    print(f"LISTEN tracker {os.ttyname(slave)}", flush=True)
+    serve(master, state, args.targets, stop)
+    os.close(master)
+    os.close(slave)
+    return 0
+
+
+def serve(master: int, state: TrackerState, targets_path: Path, stop: list[bool]) -> None:
+    """Answer requests on the pty ``master`` until ``stop[0]`` or until the parent process ends."""
+    parent = os.getppid()
+    mtime = _mtime(targets_path)
+    buffer = bytearray()
+    while not stop[0] and os.getppid() == parent:
+        if (new_mtime := _mtime(targets_path)) != mtime:
+            mtime = new_mtime
+            try:
+                state.nests, state.noise_mm, state.beam_on = load_targets(targets_path)
+            except (OSError, ValueError) as exc:
+                log.warning("keeping old targets, cannot re-read %s: %s", targets_path, exc)
+        wait = 0.2 if not state.scheduled else max(0.0, min(0.2, state.scheduled[0][0] - time.monotonic()))
+        try:
+            readable, _, _ = select.select([master], [], [], wait)
+        except InterruptedError:
+            continue
+        if readable:
+            try:
+                buffer.extend(os.read(master, 4096))
+            except OSError:  # no client has the slave open: nothing to read
+                time.sleep(0.05)
+        while (end := buffer.find(b"\n")) >= 0:
+            line = bytes(buffer[:end]).rstrip(b"\r")
+            del buffer[: end + 1]
+            _schedule(state, answer(state, line))
+        if len(buffer) > MAX_LINE_BYTES:
+            buffer.clear()
+            _schedule(state, (0.0, encode_error(0, E_MALFORMED, "line too long")))
+        now = time.monotonic()
+        while state.scheduled and state.scheduled[0][0] <= now:
+            _, _, reply = heapq.heappop(state.scheduled)
+            os.write(master, reply)
+
+
+def answer(state: TrackerState, line: bytes) -> tuple[float, bytes] | None:
+    """The reply to one request line and its delay in seconds, or ``None`` for silence."""
+    if not line.strip():
+        return None
+    try:
+        request = decode_request(line)
+    except DeviceProtocolError as exc:
+        return 0.0, encode_error(0, E_MALFORMED, str(exc)[:80])
+    if request.command == CMD_SIM_FAULT:
+        return 0.0, _set_fault(state, request)
+    fault = state.fault
+    if fault != "NONE":
+        state.fault_count -= 1
+        if state.fault_count == 0:
+            state.fault = "NONE"
+    if fault == "NOREPLY":
+        return None
+    if fault == "GARBAGE":
+        return 0.0, GARBAGE_LINE
+    if fault == "BEAM" and request.command == CMD_MEASURE_POINT:
+        return 0.0, encode_error(request.tag, E_BEAM_BROKEN, "beam broken: no target locked")
+    delay = state.late_delay_s if fault == "LATE" else 0.0
+    return delay, _execute(state, request)
+
+
+def load_targets(path: Path) -> tuple[dict[str, np.ndarray], float, str | None]:
+    """Read a targets file: ``{"format", "noise_mm", "nests": {name: [x, y, z]}, "beam_on"}``."""
+    data = json.loads(Path(path).read_text())
+    if data.get("format") != TARGETS_FORMAT:
+        raise ValueError(f"{path}: format must be {TARGETS_FORMAT!r}, got {data.get('format')!r}")
+    nests = {str(k): np.asarray(v, dtype=float).reshape(3) for k, v in data["nests"].items()}
+    return nests, float(data["noise_mm"]), data.get("beam_on")
+
+
+# --- private -----------------------------------------------------------------------------------
+
+
+def _execute(state: TrackerState, request: Request) -> bytes:
+    tag, command, args = request.tag, request.command, request.args
+    if command == CMD_IDENTIFY:
+        return encode_ok(tag, IDENTITY)
+    if command == CMD_GET_UNIT:
+        return encode_ok(tag, state.unit)
+    if command == CMD_SET_UNIT:
+        if len(args) != 1 or args[0].upper() not in UNIT_TO_MM:
+            return encode_error(tag, E_BAD_ARGUMENT, f"unit must be one of {','.join(UNIT_TO_MM)}")
+        state.unit = args[0].upper()
+        return encode_ok(tag, state.unit)
+    if command == CMD_LIST_NESTS:
+        return encode_ok(tag, ",".join(state.nests))
+    if command == CMD_MEASURE_POINT:
+        return _measure(state, tag, args)
+    return encode_error(tag, E_UNKNOWN_COMMAND, f"unknown command {command}")
+
+
+def _measure(state: TrackerState, tag: int, args: tuple[str, ...]) -> bytes:
+    if len(args) > 1:
+        return encode_error(tag, E_BAD_ARGUMENT, "at most one nest name")
+    nest = args[0] if args else state.beam_on
+    if nest is None:
+        return encode_error(tag, E_BEAM_BROKEN, "beam broken: no target locked")
+    if nest not in state.nests:
+        return encode_error(tag, E_UNKNOWN_NEST, f"unknown nest {nest}")
+    state.beam_on = nest
+    # The spec's uncertainty is the 3-D RMS error of a point: per axis noise_mm / sqrt(3) for the mean of
+    # SAMPLES_PER_POINT samples; the reported RMS is the samples' scatter about their mean.
+    sigma_sample = state.noise_mm / math.sqrt(3.0) * math.sqrt(SAMPLES_PER_POINT)
+    samples = state.nests[nest] + state.rng.normal(0.0, sigma_sample, size=(SAMPLES_PER_POINT, 3))
+    point = samples.mean(axis=0)
+    rms = float(np.sqrt(np.mean(np.sum((samples - point) ** 2, axis=1))))
+    state.measurement_number += 1
+    return encode_ok(tag, *format_measurement(point, rms, state.measurement_number, state.unit))
+
+
+def _set_fault(state: TrackerState, request: Request) -> bytes:
+    args = request.args
+    if not args or args[0].upper() not in FAULT_MODES:
+        return encode_error(request.tag, E_BAD_ARGUMENT, f"mode must be one of {','.join(FAULT_MODES)}")
+    try:
+        count = int(args[1]) if len(args) > 1 else 1
+        delay = float(args[2]) if len(args) > 2 else state.late_delay_s
+    except ValueError:
+        return encode_error(request.tag, E_BAD_ARGUMENT, "count must be an integer, delay a number")
+    state.fault, state.fault_count, state.late_delay_s = args[0].upper(), count, delay
+    log.info("fault %s for %s request(s)", state.fault, count or "all")
+    return encode_ok(request.tag, state.fault, str(count))
+
+
+_sequence = [0]
+
+
+def _schedule(state: TrackerState, reply: tuple[float, bytes] | None) -> None:
+    if reply is not None:
+        _sequence[0] += 1
+        heapq.heappush(state.scheduled, (time.monotonic() + reply[0], _sequence[0], reply[1]))
+
+
+def _mtime(path: Path) -> float:
+    try:
+        return path.stat().st_mtime_ns
+    except OSError:
+        return -1.0
+
+
+def _install_stop_handlers() -> list[bool]:
+    stop = [False]
+
+    def _stop(signum: int, _frame: object) -> None:
+        stop[0] = True
+
+    signal.signal(signal.SIGTERM, _stop)
+    signal.signal(signal.SIGINT, _stop)
+    return stop
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,133 @@
+"""`monoguide probe` and `monoguide sim-cell`, end to end: real processes, real pty, real GenTL producer."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import select
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from monoguide.daemon.assembly import build_sim_cell
+from monoguide.daemon.cli import app
+from monoguide.daemon.config import load_cell_config
+
+CONFIG_DIR = Path(__file__).parents[2] / "config"
+SIM_CELL = CONFIG_DIR / "sim-cell.toml"
+runner = CliRunner()
+
+
+@pytest.fixture
+def sim_cell(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], Path, str]]:
+    """A running ``monoguide sim-cell`` with its state file in ``tmp_path``; stopped (SIGTERM) at teardown."""
+    state = tmp_path / "state.json"
+    process = subprocess.Popen([sys.executable, "-m", "monoguide.daemon.cli", "sim-cell", "--config", str(SIM_CELL),
+                                "--state-file", str(state)], stdout=subprocess.PIPE, text=True)
+    assert process.stdout is not None
+    ready, _, _ = select.select([process.stdout], [], [], 20.0)
+    first = process.stdout.readline() if ready else ""
+    try:
+        match = re.match(r"tracker listening on (\S+)", first)
+        assert match, f"sim-cell said {first!r}"
+        yield process, state, match.group(1)
+    finally:
+        if process.poll() is None:
+            process.send_signal(signal.SIGTERM)
+            try:
+                process.wait(10)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait(5)
+        process.stdout.close()
+
+
+def test_probe_sim_camera_saves_the_rendered_frame(tmp_path: Path) -> None:
+    out = tmp_path / "frame.png"
+    result = runner.invoke(app, ["probe", "camera", "--config", str(SIM_CELL), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "SimCamera" in result.output and "2456 x 2058" in result.output
+    assert cv2.imread(str(out), cv2.IMREAD_UNCHANGED).shape == (2058, 2456)
+
+
+def test_probe_viky_saves_a_real_gentl_frame(tmp_path: Path) -> None:
+    out = tmp_path / "viky.png"
+    result = runner.invoke(app, ["probe", "camera", "--config", str(CONFIG_DIR / "viky-camera.toml"),
+                                 "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "Viky, serial 0" in result.output
+    assert cv2.imread(str(out), cv2.IMREAD_UNCHANGED).shape == (480, 640)
+
+
+def test_probe_absent_camera_fails_clearly(tmp_path: Path) -> None:
+    text = (CONFIG_DIR / "viky-camera.toml").read_text().replace('serial = "0"', 'serial = "77"')
+    text = text.replace("../.venv", str(CONFIG_DIR.parent / ".venv"))
+    (tmp_path / "cell.toml").write_text(text)
+    result = runner.invoke(app, ["probe", "camera", "--config", str(tmp_path / "cell.toml")])
+    assert result.exit_code == 1
+    assert "DEVICE_NOT_FOUND" in result.output and "'77'" in result.output
+
+
+def test_probe_bad_config_is_exit_2(tmp_path: Path) -> None:
+    (tmp_path / "cell.toml").write_text("[cell]\n")
+    result = runner.invoke(app, ["probe", "camera", "--config", str(tmp_path / "cell.toml")])
+    assert result.exit_code == 2 and "CONFIG_INVALID" in result.output
+
+
+def test_probe_tracker_without_a_running_sim_cell(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["probe", "tracker", "--config", str(SIM_CELL),
+                                 "--state-file", str(tmp_path / "none.json")])
+    assert result.exit_code == 1 and "DEVICE_NOT_FOUND" in result.output and "sim-cell" in result.output
+
+
+def test_sim_cell_serves_the_tracker_to_probe_and_stops_clean(sim_cell: tuple, tmp_path: Path) -> None:
+    process, state, port = sim_cell
+    assert state.is_file() and Path(port).exists()
+    result = runner.invoke(app, ["probe", "tracker", "--config", str(SIM_CELL), "--state-file", str(state),
+                                 "--nest", "B3"])
+    assert result.exit_code == 0, result.output
+    assert "SimTracker" in result.output
+    xyz = np.array([float(v) for v in re.search(r"x (\S+) y (\S+) z (\S+) mm", result.output).groups()])
+    truth = build_sim_cell(load_cell_config(SIM_CELL)).tracker_targets()["B3"]  # the seeded cell's truth
+    assert np.linalg.norm(xyz - truth) < 0.15
+
+    tracker_pid = json.loads(state.read_text())["tracker"]["pid"]
+    process.send_signal(signal.SIGTERM)
+    assert process.wait(10) == 0
+    assert not state.exists()
+    deadline = time.monotonic() + 5
+    while time.monotonic() < deadline and _alive(tracker_pid):
+        time.sleep(0.05)
+    assert not _alive(tracker_pid), "sim-cell left its tracker process behind"
+
+
+def test_probe_tracker_on_a_dead_device_fails_clearly(sim_cell: tuple) -> None:
+    _, state, _ = sim_cell
+    tracker_pid = json.loads(state.read_text())["tracker"]["pid"]
+    os.kill(tracker_pid, signal.SIGSTOP)  # the tracker hangs: no reply
+    try:
+        result = runner.invoke(app, ["probe", "tracker", "--config", str(SIM_CELL), "--state-file", str(state)])
+    finally:
+        os.kill(tracker_pid, signal.SIGCONT)
+    assert result.exit_code == 1 and "DEVICE_TIMEOUT" in result.output
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    # a zombie still answers kill(0); its state letter tells
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z"
+    except OSError:
+        return False
