@@ -18,19 +18,20 @@ from __future__ import annotations
 
 import os
 
+# one core: the thread limits must be set before numpy loads
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import argparse  # noqa: E402 - the thread limits must be set before numpy loads
-import math  # noqa: E402
-import statistics  # noqa: E402
-import time  # noqa: E402
-from dataclasses import dataclass, field, replace  # noqa: E402
+import argparse
+import math
+import statistics
+import time
+from dataclasses import dataclass, field, replace
 
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
+import cv2
+import numpy as np
 
-from monoguide.drivers.sim.hole_renderer import (  # noqa: E402
+from monoguide.drivers.sim.hole_renderer import (
     Glare,
     HoleSpec,
     PartEdge,
@@ -39,10 +40,10 @@ from monoguide.drivers.sim.hole_renderer import (  # noqa: E402
     render_view,
     scatter_clutter,
 )
-from monoguide.solver import frames  # noqa: E402
-from monoguide.solver.camera import PAPER_CAMERA, CameraModel  # noqa: E402
-from monoguide.solver.errors import FeatureNotFound  # noqa: E402
-from monoguide.solver.holes import find_holes, measure_hole, perspective_correction  # noqa: E402
+from monoguide.solver import frames
+from monoguide.solver.camera import PAPER_CAMERA, CameraModel
+from monoguide.solver.errors import FeatureNotFound
+from monoguide.solver.holes import find_holes, measure_hole, perspective_correction
 
 CONTRASTS = {"strong": (190.0, 25.0), "medium": (160.0, 60.0), "weak": (125.0, 80.0)}
 DISTANCE_MM = 650.0

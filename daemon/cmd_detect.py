@@ -27,7 +27,7 @@ _REASON_PRIORITY = (ImageSaturated, HoleCutByBorder, LowContrast, HoleNotFound)
 
 
 def detect(
-    images: Annotated[list[str], typer.Argument(help="Image files (PNG, TIFF, BMP, ...; grey or colour, 8 or 16 bit).")],
+    images: Annotated[list[str], typer.Argument(help="Image files: PNG, TIFF, BMP...; grey or colour, 8 or 16 bit.")],
     json_output: Annotated[bool, typer.Option("--json", help="One JSON object per image per line.")] = False,
     roi: Annotated[str | None, typer.Option("--roi", help="Search only here: X,Y,W,H in pixels.")] = None,
     radius_px: Annotated[float | None, typer.Option("--radius-px", help="Expected hole radius, pixels.")] = None,

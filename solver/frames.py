@@ -61,14 +61,25 @@ def cross_rows(v: np.ndarray, A: np.ndarray) -> np.ndarray:
 
 
 def rotvec_to_matrix(r: np.ndarray) -> np.ndarray:
-    """Rodrigues: rotation vector (3,) in rad -> rotation matrix (3, 3)."""
-    theta = math.sqrt(float(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]))
-    K = skew(r)
-    if theta < 1e-8:
-        return np.eye(3) + K + 0.5 * (K @ K)
-    a = math.sin(theta) / theta
-    b = (1.0 - math.cos(theta)) / (theta * theta)
-    return np.eye(3) + a * K + b * (K @ K)
+    """Rodrigues: rotation vector (3,) in rad -> rotation matrix (3, 3).
+
+    Written with scalars: the solver calls it once per iteration, where numpy's per-call cost dominates.
+    """
+    x, y, z = float(r[0]), float(r[1]), float(r[2])
+    theta2 = x * x + y * y + z * z
+    if theta2 < 1e-16:
+        a, b = 1.0 - theta2 / 6.0, 0.5 - theta2 / 24.0
+    else:
+        theta = math.sqrt(theta2)
+        a, b = math.sin(theta) / theta, (1.0 - math.cos(theta)) / theta2
+    # R = I + a [r]x + b [r]x^2, with [r]x^2 = r r^T - theta^2 I
+    return np.array(
+        [
+            [1.0 - b * (y * y + z * z), b * x * y - a * z, b * x * z + a * y],
+            [b * x * y + a * z, 1.0 - b * (x * x + z * z), b * y * z - a * x],
+            [b * x * z - a * y, b * y * z + a * x, 1.0 - b * (x * x + y * y)],
+        ]
+    )
 
 
 def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:

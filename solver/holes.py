@@ -14,12 +14,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from monoguide.solver.camera import CameraModel
-from monoguide.solver.ellipse import fit_ellipse
+from monoguide.solver.ellipse import Ellipse, fit_ellipse
 from monoguide.solver.errors import (
     FeatureNotFound,
     HoleAmbiguous,
@@ -29,6 +29,7 @@ from monoguide.solver.errors import (
     LowContrast,
 )
 from monoguide.solver.hole_edges import SATURATION_GREY, as_grey, measure_rim, seed_dark_blobs
+from monoguide.solver.rim_fit import refine_ellipse_photometric
 
 DEFAULT_MIN_RADIUS_PX = 6.0
 DEFAULT_MAX_RADIUS_PX = 80.0
@@ -124,39 +125,8 @@ def scan_holes(
     levels, blurred beyond ``max_blur_px`` sigma, or more than ``max_saturated_fraction`` saturated.
     ``photometric=False`` stops at the paper's final ellipse instead of refining it on the grey levels.
     """
-    grey = as_grey(image)
-    box = _roi_box(roi, grey.shape)
-    if expected_radius_px is not None:
-        if not expected_radius_px > 0:
-            raise ValueError(f"expected_radius_px must be positive, got {expected_radius_px}")
-        r_min, r_max = 0.6 * expected_radius_px, 1.6 * expected_radius_px
-    else:
-        r_min, r_max = min_radius_px, max_radius_px
-    x0, y0, x1, y1 = box
-    saturated = float(np.mean(grey[y0:y1, x0:x1] >= SATURATION_GREY))
-    holes: list[HoleCandidate] = []
-    refused: list[RefusedBlob] = []
-    for seed in seed_dark_blobs(grey, box, r_min, r_max, min_contrast):
-        try:
-            rim = measure_rim(grey, seed, min_contrast=min_contrast, max_blur_px=max_blur_px,
-                              max_saturated_fraction=max_saturated_fraction, photometric=photometric)
-        except FeatureNotFound as exc:
-            refused.append(RefusedBlob(center=seed.center, radius_px=seed.radius_px, error=exc))
-            continue
-        c = rim.ellipse.center
-        if not (x0 - 0.5 <= c[0] < x1 - 0.5 and y0 - 0.5 <= c[1] < y1 - 0.5):
-            continue
-        score = _score(rim.rms_px, rim.valid_fraction, rim.contrast, min_contrast, rim.ellipse.mean_radius,
-                       c, expected_center, expected_radius_px)
-        holes.append(HoleCandidate(center=c, axes=rim.ellipse.axes, angle_deg=rim.ellipse.angle_deg,
-                                   score=score, contrast=rim.contrast, edge_width_px=rim.edge_width_px,
-                                   rms_px=rim.rms_px, n_edge_points=len(rim.edge_points)))
-    holes.sort(key=lambda hole: -hole.score)
-    unique: list[HoleCandidate] = []
-    for hole in holes:  # one hole seen from two seeds (a rim split by glare) is kept once
-        if all(np.hypot(*(hole.center - kept.center)) > _SAME_HOLE_PX for kept in unique):
-            unique.append(hole)
-    return HoleScan(holes=unique, refused=refused, saturated_fraction=saturated)
+    return _scan_grey(as_grey(image), roi, expected_center, expected_radius_px, min_radius_px, max_radius_px,
+                      min_contrast, max_blur_px, max_saturated_fraction, photometric)
 
 
 def measure_hole(
@@ -167,7 +137,10 @@ def measure_hole(
     *,
     max_offset_px: float | None = None,
     radius_tol: float = DEFAULT_RADIUS_TOL,
-    **options: float,
+    min_contrast: float = 15.0,
+    max_blur_px: float = 3.0,
+    max_saturated_fraction: float = 0.02,
+    photometric: bool = True,
 ) -> HoleCandidate:
     """The one hole expected at ``expected_center`` (2,) px with radius ``expected_radius_px``.
 
@@ -176,7 +149,8 @@ def measure_hole(
     and whose mean radius is within ``radius_tol`` of the expected one. Exactly one must remain:
     none raises :class:`HoleNotFound` (or, when the blob that would have been it was refused,
     :class:`HoleCutByBorder`, :class:`LowContrast` or :class:`ImageSaturated`); two or more raise
-    :class:`HoleAmbiguous` rather than guess.
+    :class:`HoleAmbiguous` rather than guess. The other options are :func:`scan_holes`'s; the
+    photometric refinement runs on the chosen hole only.
     """
     ex, ey = float(expected_center[0]), float(expected_center[1])
     r = float(expected_radius_px)
@@ -185,12 +159,14 @@ def measure_hole(
         half = max_offset + 2.0 * r
         roi = (math.floor(ex - half), math.floor(ey - half), int(2 * half) + 2, int(2 * half) + 2)
     where = f"hole expected at ({ex:.1f}, {ey:.1f}) r={r:.1f} px"
-    scan = scan_holes(image, roi, (ex, ey), r, **options)
+    grey = as_grey(image)
+    scan = _scan_grey(grey, roi, (ex, ey), r, DEFAULT_MIN_RADIUS_PX, DEFAULT_MAX_RADIUS_PX, min_contrast,
+                      max_blur_px, max_saturated_fraction, photometric=False)
     plausible = [h for h in scan.holes
                  if abs(h.mean_radius / r - 1.0) <= radius_tol and math.hypot(h.center[0] - ex, h.center[1] - ey)
                  <= max_offset]
     if len(plausible) == 1:
-        return plausible[0]
+        return _refined(grey, plausible[0]) if photometric else plausible[0]
     if len(plausible) > 1:
         listed = "; ".join(
             f"({h.center[0]:.1f}, {h.center[1]:.1f}) r={h.mean_radius:.1f} score {h.score:.2f}" for h in plausible)
@@ -240,6 +216,60 @@ def perspective_correction(
 
 
 # --- private helpers -----------------------------------------------------------------------------
+
+
+def _scan_grey(
+    grey: np.ndarray,
+    roi: Sequence[int] | None,
+    expected_center: Sequence[float] | None,
+    expected_radius_px: float | None,
+    min_radius_px: float,
+    max_radius_px: float,
+    min_contrast: float,
+    max_blur_px: float,
+    max_saturated_fraction: float,
+    photometric: bool,
+) -> HoleScan:
+    """:func:`scan_holes` on a grey image (h, w) float32 already converted."""
+    box = _roi_box(roi, grey.shape)
+    if expected_radius_px is not None:
+        if not expected_radius_px > 0:
+            raise ValueError(f"expected_radius_px must be positive, got {expected_radius_px}")
+        r_min, r_max = 0.6 * expected_radius_px, 1.6 * expected_radius_px
+    else:
+        r_min, r_max = min_radius_px, max_radius_px
+    x0, y0, x1, y1 = box
+    saturated = float(np.mean(grey[y0:y1, x0:x1] >= SATURATION_GREY))
+    holes: list[HoleCandidate] = []
+    refused: list[RefusedBlob] = []
+    for seed in seed_dark_blobs(grey, box, r_min, r_max, min_contrast):
+        try:
+            rim = measure_rim(grey, seed, min_contrast=min_contrast, max_blur_px=max_blur_px,
+                              max_saturated_fraction=max_saturated_fraction, photometric=photometric)
+        except FeatureNotFound as exc:
+            refused.append(RefusedBlob(center=seed.center, radius_px=seed.radius_px, error=exc))
+            continue
+        c = rim.ellipse.center
+        if not (x0 - 0.5 <= c[0] < x1 - 0.5 and y0 - 0.5 <= c[1] < y1 - 0.5):
+            continue
+        score = _score(rim.rms_px, rim.valid_fraction, rim.contrast, min_contrast, rim.ellipse.mean_radius,
+                       c, expected_center, expected_radius_px)
+        holes.append(HoleCandidate(center=c, axes=rim.ellipse.axes, angle_deg=rim.ellipse.angle_deg,
+                                   score=score, contrast=rim.contrast, edge_width_px=rim.edge_width_px,
+                                   rms_px=rim.rms_px, n_edge_points=len(rim.edge_points)))
+    holes.sort(key=lambda hole: -hole.score)
+    unique: list[HoleCandidate] = []
+    for hole in holes:  # one hole seen from two seeds (a rim split by glare) is kept once
+        if all(np.hypot(*(hole.center - kept.center)) > _SAME_HOLE_PX for kept in unique):
+            unique.append(hole)
+    return HoleScan(holes=unique, refused=refused, saturated_fraction=saturated)
+
+
+def _refined(grey: np.ndarray, hole: HoleCandidate) -> HoleCandidate:
+    """``hole`` with its ellipse refined on the rim's grey levels (:mod:`monoguide.solver.rim_fit`)."""
+    start = Ellipse(center=hole.center, axes=hole.axes, angle_deg=hole.angle_deg)
+    fitted, _ = refine_ellipse_photometric(grey, start, hole.edge_width_px, SATURATION_GREY)
+    return replace(hole, center=fitted.center, axes=fitted.axes, angle_deg=fitted.angle_deg)
 
 
 def _roi_box(roi: Sequence[int] | None, shape: tuple[int, ...]) -> tuple[int, int, int, int]:

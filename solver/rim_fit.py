@@ -10,9 +10,10 @@ estimate under sensor noise and comes close to the Cramér-Rao bound (see benchm
 
 ``d(p)`` the distance of pixel ``p`` from the ellipse along the ray from its centre, ``Phi`` the normal
 CDF (a Gaussian-blurred step), ``h`` and ``s`` the hole and sheet grey levels, ``g`` (2,) the relative
-slope of the light across the hole (uneven lighting multiplies both levels). The ellipse is ``(p - c)^T M (p - c) = 1``: centre ``c``
-and a symmetric ``M``, well conditioned for circles. Saturated pixels do not vote; pixels that do not
-fit (a neighbouring hole, dirt) are dropped after a first solve.
+slope of the light across the hole (uneven lighting multiplies both levels). The ellipse is
+``(p - c)^T M (p - c) = 1``: centre ``c`` and a symmetric ``M``, well conditioned for circles.
+Saturated pixels do not vote; pixels that do not fit (a neighbouring hole, dirt) are dropped after a
+first solve.
 """
 
 from __future__ import annotations

@@ -108,8 +108,8 @@ def render_view(
     (a fresh unseeded generator when None; pass a seeded one for reproducible images).
     """
     rng = rng if rng is not None else np.random.default_rng()
-    radiance = render_expected_image(camera, T_c_w, [*holes, *clutter], settings)
-    if settings.noise_sigma > 0:
+    radiance = _radiance(camera, T_c_w, [*holes, *clutter], settings)
+    if settings.noise_sigma > 0:  # noise before the clip: a saturated pixel reads 255 whatever the noise
         radiance += rng.standard_normal(radiance.shape, dtype=np.float32) * np.float32(settings.noise_sigma)
     # saturate_cast rounds to nearest and clips at 255; negative values must be clipped first
     image = cv2.convertScaleAbs(cv2.max(radiance, 0.0))
@@ -127,27 +127,10 @@ def render_expected_image(
 ) -> np.ndarray:
     """The noise-free, unquantised image (height, width) float32: exposure applied and clipped at 255.
 
-    This is the mean of :func:`render_view`'s image; the Cramér-Rao bound is computed from its
-    derivative.
+    This is the mean of :func:`render_view`'s image where nothing saturates; the Cramér-Rao bound is
+    computed from its derivative.
     """
-    h, w = camera.height, camera.width
-    reflectance = np.full((h, w), settings.sheet_grey, dtype=np.float32)
-    for hole in holes:
-        box, coverage = hole_coverage(camera, T_c_w, hole, settings.supersample)
-        if box is None:
-            continue
-        x0, y0, x1, y1 = box
-        reflectance[y0:y1, x0:x1] += np.float32(settings.hole_grey - settings.sheet_grey) * coverage
-    if settings.glare is not None:
-        reflectance += _glare_image(camera, settings.glare) * (reflectance - settings.hole_grey) / max(
-            settings.sheet_grey - settings.hole_grey, 1e-6)
-    if settings.part_edge is not None:
-        edge_cov = _edge_coverage(camera, T_c_w, settings.part_edge)
-        reflectance += (np.float32(settings.part_edge.beyond_grey) - reflectance) * edge_cov
-    image = reflectance * _light_field(h, w, settings)
-    if settings.blur_sigma_px > 0:
-        image = cv2.GaussianBlur(image, (0, 0), settings.blur_sigma_px, borderType=cv2.BORDER_REPLICATE)
-    return np.minimum(image, np.float32(255.0))
+    return np.minimum(_radiance(camera, T_c_w, holes, settings), np.float32(255.0))
 
 
 def hole_coverage(
@@ -233,6 +216,30 @@ class _HolePlane:
         rho = np.linalg.norm(points - self.center_c, axis=1)
         rho[~(lam > 0)] = np.inf  # a ray that misses the plane (or meets it behind the camera) is sheet
         return rho
+
+
+def _radiance(
+    camera: CameraModel, T_c_w: np.ndarray, holes: Sequence[HoleSpec], settings: RenderSettings
+) -> np.ndarray:
+    """The noise-free grey levels (height, width) float32 before the sensor clips them."""
+    h, w = camera.height, camera.width
+    reflectance = np.full((h, w), settings.sheet_grey, dtype=np.float32)
+    for hole in holes:
+        box, coverage = hole_coverage(camera, T_c_w, hole, settings.supersample)
+        if box is None:
+            continue
+        x0, y0, x1, y1 = box
+        reflectance[y0:y1, x0:x1] += np.float32(settings.hole_grey - settings.sheet_grey) * coverage
+    if settings.glare is not None:
+        reflectance += _glare_image(camera, settings.glare) * (reflectance - settings.hole_grey) / max(
+            settings.sheet_grey - settings.hole_grey, 1e-6)
+    if settings.part_edge is not None:
+        edge_cov = _edge_coverage(camera, T_c_w, settings.part_edge)
+        reflectance += (np.float32(settings.part_edge.beyond_grey) - reflectance) * edge_cov
+    image = reflectance * _light_field(h, w, settings)
+    if settings.blur_sigma_px > 0:
+        image = cv2.GaussianBlur(image, (0, 0), settings.blur_sigma_px, borderType=cv2.BORDER_REPLICATE)
+    return image
 
 
 def _hole_center_px(camera: CameraModel, T_c_w: np.ndarray, hole: HoleSpec) -> np.ndarray:
