@@ -20,7 +20,7 @@ from monoguide.solver.errors import (
     LowContrast,
     MonoguideError,
 )
-from monoguide.solver.holes import HoleScan, scan_holes
+from monoguide.solver.holes import DEFAULT_RADIUS_TOL, HoleScan, scan_holes
 
 # When no hole was found, the refused blob that explains it best: the most specific reason first.
 _REASON_PRIORITY = (ImageSaturated, HoleCutByBorder, LowContrast, HoleNotFound)
@@ -30,12 +30,15 @@ def detect(
     images: Annotated[list[str], typer.Argument(help="Image files: PNG, TIFF, BMP...; grey or colour, 8 or 16 bit.")],
     json_output: Annotated[bool, typer.Option("--json", help="One JSON object per image per line.")] = False,
     roi: Annotated[str | None, typer.Option("--roi", help="Search only here: X,Y,W,H in pixels.")] = None,
-    radius_px: Annotated[float | None, typer.Option("--radius-px", help="Expected hole radius, pixels.")] = None,
+    radius_px: Annotated[
+        float | None, typer.Option("--radius-px", help="Only holes of this radius (+-25 %), pixels.")
+    ] = None,
 ) -> None:
     """Find the holes in each image and print their sub-pixel centres, most plausible first.
 
     Pixel coordinates are raw image coordinates (x right, y down, pixel centres at integers); axes are
-    the ellipse's semi-axes. The exit status is 1 when any image failed.
+    the ellipse's semi-axes. With --radius-px only holes within 25 % of that radius are listed. The
+    exit status is 1 when any image failed.
     """
     roi_box = _parse_roi(roi)
     if radius_px is not None and not radius_px > 0:
@@ -55,14 +58,15 @@ def _detect_one(path: str, roi: tuple[int, int, int, int] | None, radius_px: flo
     try:
         image = _read_image(path)
         scan = scan_holes(image, roi=roi, expected_radius_px=radius_px)
-        if not scan.holes:
-            raise _why_nothing(scan, roi)
+        holes = [h for h in scan.holes if radius_px is None or abs(h.mean_radius / radius_px - 1) <= DEFAULT_RADIUS_TOL]
+        if not holes:
+            raise _why_nothing(scan, roi, radius_px)
     except MonoguideError as error:
         return {"image": path, "status": "error", "holes": [], "error": error.as_dict()}
     except ValueError as error:  # a ROI outside the image
         return {"image": path, "status": "error", "holes": [],
                 "error": {"code": BadImage.code, "message": str(error)}}
-    return {"image": path, "status": "ok", "holes": [hole.as_dict() for hole in scan.holes], "error": None}
+    return {"image": path, "status": "ok", "holes": [hole.as_dict() for hole in holes], "error": None}
 
 
 def _read_image(path: str) -> Any:
@@ -74,8 +78,11 @@ def _read_image(path: str) -> Any:
     return image
 
 
-def _why_nothing(scan: HoleScan, roi: tuple[int, int, int, int] | None) -> MonoguideError:
+def _why_nothing(scan: HoleScan, roi: tuple[int, int, int, int] | None, radius_px: float | None) -> MonoguideError:
     where = "the image" if roi is None else f"roi {','.join(str(v) for v in roi)}"
+    if scan.holes and radius_px is not None:
+        seen = ", ".join(f"r={h.mean_radius:.1f}" for h in scan.holes[:5])
+        return HoleNotFound(f"{where}: no hole of radius {radius_px:.1f} px +-25 %; seen {seen}")
     if scan.saturated_fraction > 0.5:
         return ImageSaturated(f"{where}: {100 * scan.saturated_fraction:.0f} % of the pixels are saturated")
     for kind in _REASON_PRIORITY:

@@ -96,13 +96,18 @@ def as_grey(image: np.ndarray) -> np.ndarray:
 
 
 def seed_dark_blobs(
-    grey: np.ndarray, box: tuple[int, int, int, int], r_min: float, r_max: float, min_contrast: float
+    grey: np.ndarray,
+    box: tuple[int, int, int, int],
+    r_min: float,
+    r_max: float,
+    min_contrast: float,
+    relative_threshold: float = 0.2,
 ) -> list[Seed]:
     """Dark blobs of equivalent radius ``r_min / 2 .. 1.5 r_max`` px inside ``box`` (x0, y0, x1, y1).
 
     The background is the grey-level closing of the image with a square larger than the largest hole
     (the "morphology" of Sec. 5.3), computed on a coarse copy; a pixel is dark when it lies more than
-    ``max(min_contrast / 2, 20 %)`` below it.
+    ``max(min_contrast / 2, relative_threshold * background)`` below it.
     """
     x0, y0, x1, y1 = box
     crop = grey[y0:y1, x0:x1]
@@ -118,7 +123,7 @@ def seed_dark_blobs(
     if background.shape != small.shape:
         background = cv2.resize(background, (small.shape[1], small.shape[0]), interpolation=cv2.INTER_LINEAR)
     darkness = background - small
-    threshold = np.maximum(np.float32(0.5 * min_contrast), np.float32(0.2) * background)
+    threshold = np.maximum(np.float32(0.5 * min_contrast), np.float32(relative_threshold) * background)
     mask = (darkness > threshold).astype(np.uint8)
     n, _, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8)
     seeds = []

@@ -97,7 +97,7 @@ def find_holes(
     roi: Sequence[int] | None = None,
     expected_center: Sequence[float] | None = None,
     expected_radius_px: float | None = None,
-    **options: float,
+    **options: float | bool,
 ) -> list[HoleCandidate]:
     """All holes whose centre lies in ``roi`` (x, y, w, h) px (the whole image when None), most
     plausible first. ``expected_center`` (2,) and ``expected_radius_px`` raise the score of holes near
@@ -178,6 +178,10 @@ def measure_hole(
             raise type(blob.error)(f"{where}: {blob.error.message}")
     if scan.saturated_fraction > 0.5:
         raise ImageSaturated(f"{where}: {100 * scan.saturated_fraction:.0f} % of the search region is saturated")
+    faint = _faint_hole(grey, _roi_box(roi, grey.shape), (ex, ey), r, max_offset)
+    if faint is not None and faint[2] < min_contrast:
+        raise LowContrast(f"{where}: only a faint dark region at ({faint[0]:.1f}, {faint[1]:.1f}), contrast "
+                          f"~{faint[2]:.1f} grey levels < {min_contrast:.1f}")
     seen = ", ".join(f"({h.center[0]:.1f}, {h.center[1]:.1f}) r={h.mean_radius:.1f}" for h in scan.holes[:5])
     raise HoleNotFound(f"{where}: no hole within {max_offset:.0f} px and {100 * radius_tol:.0f} % of the radius"
                        + (f"; seen {seen}" if seen else "; nothing dark of that size in the search region"))
@@ -270,6 +274,37 @@ def _refined(grey: np.ndarray, hole: HoleCandidate) -> HoleCandidate:
     start = Ellipse(center=hole.center, axes=hole.axes, angle_deg=hole.angle_deg)
     fitted, _ = refine_ellipse_photometric(grey, start, hole.edge_width_px, SATURATION_GREY)
     return replace(hole, center=fitted.center, axes=fitted.axes, angle_deg=fitted.angle_deg)
+
+
+def _faint_hole(
+    grey: np.ndarray, box: tuple[int, int, int, int], expected: tuple[float, float], r: float, max_offset: float
+) -> tuple[float, float, float] | None:
+    """(u, v, contrast) of a dark blob of the expected size too faint for the seeds, or None.
+
+    The threshold is five times the noise (from the spread of neighbouring pixel differences, reduced by
+    the seeds' downsampling) instead of a fraction of the sheet's brightness.
+    """
+    x0, y0, x1, y1 = box
+    patch = grey[y0:y1, x0:x1]
+    noise = 1.4826 * float(np.median(np.abs(np.diff(patch, axis=1)))) / math.sqrt(2.0)
+    f = int(np.clip((0.6 * r) // 3, 1, 4))  # the seeds' downsampling, which averages the noise down
+    threshold = 5.0 * max(noise, 0.5) / f
+    for seed in seed_dark_blobs(grey, box, 0.6 * r, 1.6 * r, 2.0 * threshold, relative_threshold=0.0):
+        if math.hypot(seed.center[0] - expected[0], seed.center[1] - expected[1]) > max_offset + r:
+            continue
+        reach = int(1.6 * seed.radius_px) + 2
+        cu, cv = round(float(seed.center[0])), round(float(seed.center[1]))
+        py0, py1 = max(cv - reach, 0), min(cv + reach + 1, grey.shape[0])
+        px0, px1 = max(cu - reach, 0), min(cu + reach + 1, grey.shape[1])
+        vv, uu = np.mgrid[py0:py1, px0:px1]
+        dist = np.hypot(uu - seed.center[0], vv - seed.center[1]) / seed.radius_px
+        around = grey[py0:py1, px0:px1]
+        inside, outside = around[dist < 0.5], around[(dist > 1.3) & (dist < 1.6)]
+        if len(inside) == 0 or len(outside) == 0:
+            continue
+        contrast = float(np.median(outside) - np.median(inside))
+        return float(seed.center[0]), float(seed.center[1]), contrast
+    return None
 
 
 def _roi_box(roi: Sequence[int] | None, shape: tuple[int, ...]) -> tuple[int, int, int, int]:
