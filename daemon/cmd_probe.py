@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from monoguide.daemon.assembly import build_camera, build_tracker, camera_settings
 from monoguide.daemon.config import CellConfig, load_cell_config
@@ -23,6 +24,7 @@ from monoguide.solver.errors import MonoguideError
 
 EXIT_DEVICE = 1
 EXIT_CONFIG = 2
+OUT_SUFFIXES = (".png", ".tif", ".tiff", ".pgm", ".bmp")  # lossless: the frame is kept as grabbed
 
 
 class Device(enum.StrEnum):
@@ -40,19 +42,23 @@ def probe(
     ] = None,
 ) -> None:
     """Connect to the camera or the laser tracker, print its identity, take one frame or point."""
-    console = Console(highlight=False)
+    # markup=False: messages quote config sections ("[camera].region") that rich would take for tags;
+    # soft_wrap: one line per result, whatever the terminal width, so scripts can read it
+    console = Console(highlight=False, markup=False, soft_wrap=True)
+    errors = Console(stderr=True, highlight=False, soft_wrap=True)
     try:
+        if out is not None:
+            _check_out(out)
         cfg = load_cell_config(config)
         if device is Device.camera:
             _probe_camera(cfg, out, console)
         else:
             _probe_tracker(cfg, nest, state_file, console)
     except ConfigError as exc:
-        Console(stderr=True, highlight=False).print(f"[red]config error {exc.code}[/red]: {exc.message}")
+        errors.print(f"[red]config error {exc.code}[/red] (PLC {exc.plc_code}): {escape(exc.message)}")
         raise typer.Exit(EXIT_CONFIG) from exc
     except MonoguideError as exc:
-        Console(stderr=True, highlight=False).print(
-            f"[red]{device.value} failed: {exc.code}[/red] (PLC {exc.plc_code}): {exc.message}")
+        errors.print(f"[red]{device.value} failed: {exc.code}[/red] (PLC {exc.plc_code}): {escape(exc.message)}")
         raise typer.Exit(EXIT_DEVICE) from exc
 
 
@@ -70,9 +76,21 @@ def _probe_camera(cfg: CellConfig, out: Path | None, console: Console) -> None:
     console.print(f"frame {frame.frame_number}: {image.shape[1]} x {image.shape[0]} px {frame.pixel_format}, "
                   f"grey min {int(image.min())} mean {float(np.mean(image)):.1f} max {int(image.max())}")
     if out is not None:
-        if not cv2.imwrite(str(out), image):
+        try:
+            written = cv2.imwrite(str(out), image)
+        except cv2.error as exc:
+            raise ConfigError(f"--out {out}: cannot write the image: {exc}") from exc
+        if not written:
             raise ConfigError(f"--out {out}: cannot write the image there")
         console.print(f"saved {out}")
+
+
+def _check_out(out: Path) -> None:
+    """Refuse an ``--out`` that cannot be written before touching the device."""
+    if out.suffix.lower() not in OUT_SUFFIXES:
+        raise ConfigError(f"--out {out}: the image format is chosen by the suffix, one of {list(OUT_SUFFIXES)}")
+    if not out.parent.is_dir():
+        raise ConfigError(f"--out {out}: folder {out.parent} does not exist")
 
 
 def _probe_tracker(cfg: CellConfig, nest: str | None, state_file: Path | None, console: Console) -> None:

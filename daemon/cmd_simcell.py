@@ -19,14 +19,17 @@ from typing import Annotated
 
 import typer
 
-from monoguide.daemon.assembly import build_sim_cell, sim_state_file, write_sim_state
+from monoguide.daemon.assembly import build_sim_cell, read_sim_state, sim_state_file, write_sim_state
 from monoguide.daemon.config import load_cell_config
+from monoguide.drivers.errors import ConfigError, DeviceDisconnected, DeviceError, DeviceNotFound, DeviceTimeout
 from monoguide.solver.errors import MonoguideError
 
 log = logging.getLogger(__name__)
 
 START_TIMEOUT_S = 15.0
 STOP_TIMEOUT_S = 3.0
+EXIT_DEVICE = 1
+EXIT_CONFIG = 2
 
 
 def sim_cell(
@@ -47,10 +50,12 @@ def sim_cell(
     targets_path: Path | None = None
     try:
         cfg = load_cell_config(config)
-        if cfg.tracker is None or cfg.tracker.backend != "sim":
-            raise typer.BadParameter("[tracker] backend must be 'sim' to simulate it", param_hint="--config")
-        state_path = state_file or sim_state_file(cfg)
-        state_path.parent.mkdir(parents=True, exist_ok=True)
+        if cfg.tracker is None:
+            raise ConfigError(f"{cfg.path}: no [tracker] section: sim-cell has nothing to simulate")
+        if cfg.tracker.backend != "sim":
+            raise ConfigError(f"{cfg.path}: [tracker].backend = {cfg.tracker.backend!r}: sim-cell simulates only "
+                              f"'sim' devices")
+        state_path = _claim_state_file(state_file or sim_state_file(cfg))
         cell = build_sim_cell(cfg)
         targets_path = cell.write_tracker_targets(state_path.with_name(state_path.stem + "-tracker-targets.json"))
         tracker = _start(
@@ -72,13 +77,16 @@ def sim_cell(
         while not stop["signal"]:
             for child in children:
                 if child.poll() is not None:
-                    typer.echo(f"simulated device (pid {child.pid}) ended with status {child.returncode}", err=True)
-                    raise typer.Exit(1)
+                    raise DeviceDisconnected(f"simulated device (pid {child.pid}) ended with status "
+                                             f"{child.returncode}")
             time.sleep(0.1)
         typer.echo(f"stopping ({signal.Signals(stop['signal']).name})", err=True)
+    except ConfigError as exc:
+        typer.echo(f"config error {exc.code} (PLC {exc.plc_code}): {exc.message}", err=True)
+        raise typer.Exit(EXIT_CONFIG) from exc
     except MonoguideError as exc:
-        typer.echo(f"error {exc.code}: {exc.message}", err=True)
-        raise typer.Exit(1) from exc
+        typer.echo(f"error {exc.code} (PLC {exc.plc_code}): {exc.message}", err=True)
+        raise typer.Exit(EXIT_DEVICE) from exc
     finally:
         _stop_all(children)
         for path in (state_path, targets_path):
@@ -89,6 +97,21 @@ def sim_cell(
 
 
 # --- private -----------------------------------------------------------------------------------
+
+
+def _claim_state_file(path: Path) -> Path:
+    """``path`` if no live sim-cell owns it (a stale file is taken over); else :class:`DeviceError`, so a
+    second sim-cell never overwrites, and on exit deletes, the state of one that is running."""
+    if path.exists():
+        try:
+            state = read_sim_state(path)
+        except DeviceNotFound:
+            pass  # stale (its sim-cell died) or not a state file we can read: ours to replace
+        else:
+            raise DeviceError(f"a simulated cell is already running (pid {state.get('pid')}) with state file "
+                              f"{path}; stop it or give another --state-file")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return path
 
 
 class _Started:
@@ -110,13 +133,11 @@ def _start(argv: list[str], name: str) -> _Started:
                 return _Started(process, line[2])
             if not line and process.poll() is not None:
                 break
+    ended = process.poll()
     _stop_all([process])
-    raise typer.Exit(_fail(f"simulated {name} did not start within {START_TIMEOUT_S:g} s"))
-
-
-def _fail(message: str) -> int:
-    typer.echo(message, err=True)
-    return 1
+    if ended is not None:
+        raise DeviceDisconnected(f"simulated {name} ended with status {ended} before it listened")
+    raise DeviceTimeout(f"simulated {name} did not say where it listens within {START_TIMEOUT_S:g} s")
 
 
 def _stop_all(children: list[subprocess.Popen[str]]) -> None:

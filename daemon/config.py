@@ -227,7 +227,7 @@ def _tracker(t: _Table) -> TrackerConfig:
     port = t.text("port", None)
     if backend == "serial" and not port:
         raise ConfigError(f"{t.where}.port: backend 'serial' needs the serial port (e.g. /dev/ttyUSB0)")
-    baud = int(t.number("baud", 115200, positive=True))
+    baud = t.integer("baud", 115200, minimum=1)
     out = TrackerConfig(backend, port, baud, t.number("timeout_s", 2.0, positive=True))
     t.done()
     return out
@@ -243,7 +243,7 @@ def _sim(t: _Table) -> SimConfig:
         targets.append(CalibrationTarget(tt.text("name"), tt.matrix("T_cf_t"), tt.points("points_t")))
         tt.done()
     out = SimConfig(
-        seed=int(t.number("seed", 0)),
+        seed=t.integer("seed", 0, minimum=0),
         state_file=t.path("state_file", None),
         T_f_c=t.matrix("T_f_c", np.eye(4)),
         T_cf_tracker=t.matrix("T_cf_tracker", np.eye(4)),
@@ -326,6 +326,16 @@ class _Table:
         if nonnegative and value < 0:
             raise ConfigError(f"{self.where}.{key} = {value!r}: must not be negative")
         return float(value)
+
+    def integer(self, key: str, default: Any = _MISSING, minimum: int | None = None) -> Any:
+        value = self._pop(key, default)
+        if value is default and default is not _MISSING:
+            return value
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{self.where}.{key} = {value!r}: expected an integer")
+        if minimum is not None and value < minimum:
+            raise ConfigError(f"{self.where}.{key} = {value!r}: must be at least {minimum}")
+        return value
 
     def ints(self, key: str, length: int | None, default: Any = _MISSING) -> Any:
         value = self._pop(key, default)

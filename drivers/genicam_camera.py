@@ -160,6 +160,9 @@ class GenICamCamera:
     # --- private -------------------------------------------------------------------------------
 
     def _choose_device(self, devices: list[Any]) -> Any:
+        if not devices:
+            raise DeviceNotFound(f"GenTL producer {self.cti} offers no camera (not a GenTL producer, or no "
+                                 f"camera connected)")
         found = [f"serial {_info(d, 'serial_number')!r} / user name {_info(d, 'user_defined_name')!r}"
                  for d in devices]
         if self.serial is not None:

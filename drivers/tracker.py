@@ -126,8 +126,8 @@ class SerialLaserTracker:
         except (serial.SerialException, OSError) as exc:
             raise DeviceNotFound(f"tracker on {self.port}: cannot open the port: {exc}") from exc
         self._channel = SerialLineChannel(self._serial, f"tracker on {self.port}")
-        self._channel.discard_input()  # stale replies from an earlier client are not ours
         try:
+            self._channel.discard_input()  # stale replies from an earlier client are not ours
             self._identity = parse_identity(self._transact(CMD_IDENTIFY))
             self._unit = parse_unit(self._transact(CMD_SET_UNIT, "MM"))
         except BaseException:

@@ -89,6 +89,8 @@ def main(argv: list[str] | None = None) -> int:
     state = TrackerState(nests, noise_mm, np.random.default_rng(args.seed), beam_on, fault=args.fault)
     master, slave = os.openpty()
     tty.setraw(slave)  # no echo, no line editing: bytes pass as sent
+    # a client that stops reading must not block the simulator (and its SIGTERM) in os.write
+    os.set_blocking(master, False)
     stop = _install_stop_handlers()
     print(f"LISTEN tracker {os.ttyname(slave)}", flush=True)
     serve(master, state, args.targets, stop)
@@ -129,7 +131,10 @@ def serve(master: int, state: TrackerState, targets_path: Path, stop: list[bool]
         now = time.monotonic()
         while state.scheduled and state.scheduled[0][0] <= now:
             _, _, reply = heapq.heappop(state.scheduled)
-            os.write(master, reply)
+            try:
+                os.write(master, reply)
+            except BlockingIOError:
+                log.warning("client is not reading; reply dropped: %r", reply)
 
 
 def answer(state: TrackerState, line: bytes) -> tuple[float, bytes] | None:

@@ -69,8 +69,7 @@ def test_probe_viky_saves_a_real_gentl_frame(tmp_path: Path) -> None:
 
 
 def test_probe_absent_camera_fails_clearly(tmp_path: Path) -> None:
-    text = (CONFIG_DIR / "viky-camera.toml").read_text().replace('serial = "0"', 'serial = "77"')
-    text = text.replace("../.venv", str(CONFIG_DIR.parent / ".venv"))
+    text = _viky_config().replace('serial = "0"', 'serial = "77"')
     (tmp_path / "cell.toml").write_text(text)
     result = runner.invoke(app, ["probe", "camera", "--config", str(tmp_path / "cell.toml")])
     assert result.exit_code == 1
@@ -96,6 +95,7 @@ def test_sim_cell_serves_the_tracker_to_probe_and_stops_clean(sim_cell: tuple, t
                                  "--nest", "B3"])
     assert result.exit_code == 0, result.output
     assert "SimTracker" in result.output
+    assert re.search(r"^point B3: x .* mm, rms \S+ mm, measurement \d+$", result.output, re.M), "one line a result"
     xyz = np.array([float(v) for v in re.search(r"x (\S+) y (\S+) z (\S+) mm", result.output).groups()])
     truth = build_sim_cell(load_cell_config(SIM_CELL)).tracker_targets()["B3"]  # the seeded cell's truth
     assert np.linalg.norm(xyz - truth) < 0.15
@@ -131,3 +131,61 @@ def _alive(pid: int) -> bool:
         return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z"
     except OSError:
         return False
+
+
+def test_config_errors_name_the_section_key_and_value(tmp_path: Path) -> None:
+    text = _viky_config().replace("grab_timeout_s = 3.0", 'grab_timeout_s = "3"')
+    (tmp_path / "cell.toml").write_text(text)
+    result = runner.invoke(app, ["probe", "camera", "--config", str(tmp_path / "cell.toml")])
+    assert result.exit_code == 2 and isinstance(result.exception, SystemExit)
+    assert "CONFIG_INVALID" in result.output
+    assert "[camera].grab_timeout_s = '3': expected a finite number" in result.output  # not eaten as markup
+
+
+def test_probe_tracker_section_missing_or_port_absent(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["probe", "tracker", "--config", str(CONFIG_DIR / "viky-camera.toml")])
+    assert result.exit_code == 2 and "no [tracker] section" in result.output
+    port = tmp_path / "ttyNOPE"
+    (tmp_path / "cell.toml").write_text(_viky_config() + f'\n[tracker]\nbackend = "serial"\nport = "{port}"\n')
+    result = runner.invoke(app, ["probe", "tracker", "--config", str(tmp_path / "cell.toml")])
+    assert result.exit_code == 1 and isinstance(result.exception, SystemExit)
+    assert "DEVICE_NOT_FOUND" in result.output and str(port) in result.output
+
+
+@pytest.mark.parametrize(("name", "message"), [("frame.xyz", "suffix"), ("absent/frame.png", "does not exist")])
+def test_probe_refuses_an_unwritable_out_before_grabbing(tmp_path: Path, name: str, message: str) -> None:
+    result = runner.invoke(app, ["probe", "camera", "--config", str(SIM_CELL), "--out", str(tmp_path / name)])
+    assert result.exit_code == 2 and isinstance(result.exception, SystemExit), result.output
+    assert "CONFIG_INVALID" in result.output and message in result.output and "SimCamera" not in result.output
+
+
+def test_sim_cell_refuses_a_config_without_a_simulated_tracker() -> None:
+    result = runner.invoke(app, ["sim-cell", "--config", str(CONFIG_DIR / "viky-camera.toml")])
+    assert result.exit_code == 2 and "CONFIG_INVALID" in result.output and "[tracker]" in result.output
+
+
+def test_a_second_sim_cell_leaves_the_running_one_alone(sim_cell: tuple) -> None:
+    _, state, _ = sim_cell
+    before = state.read_text()
+    result = runner.invoke(app, ["sim-cell", "--config", str(SIM_CELL), "--state-file", str(state)])
+    assert result.exit_code == 1 and "already running" in result.output and str(state) in result.output
+    assert state.read_text() == before  # neither overwritten nor deleted on the way out
+    result = runner.invoke(app, ["probe", "tracker", "--config", str(SIM_CELL), "--state-file", str(state)])
+    assert result.exit_code == 0, result.output
+
+
+def test_probe_says_when_the_sim_cell_of_a_state_file_died(tmp_path: Path) -> None:
+    state = tmp_path / "state.json"
+    state.write_text(json.dumps({"format": "monoguide.sim-cell-state/1", "pid": _dead_pid(), "tracker": {}}))
+    result = runner.invoke(app, ["probe", "tracker", "--config", str(SIM_CELL), "--state-file", str(state)])
+    assert result.exit_code == 1 and "no longer running" in result.output
+
+
+def _viky_config() -> str:
+    return (CONFIG_DIR / "viky-camera.toml").read_text().replace("../.venv", str(CONFIG_DIR.parent / ".venv"))
+
+
+def _dead_pid() -> int:
+    process = subprocess.Popen([sys.executable, "-c", "pass"])
+    process.wait(10)
+    return process.pid

@@ -40,6 +40,7 @@ T_cf_si = [[1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, 650.0],
 [tracker]
 backend = "serial"
 port = "/dev/ttyUSB0"
+baud = 115200
 """
 
 
@@ -102,6 +103,9 @@ def test_measuring_pose_from_taught_flange_pose_and_mounting(tmp_path: Path) -> 
         ("points_w = [[0.0, 0.0, 0.0], [100.0, 0.0, 0.0]]", "points_w = [[0.0, 0.0]]", "points_w = .*expected a list"),
         ("[[measuring_poses]]", "[[measuring_poses]]\npoints = [5]", r"points = \[5\]: \[5\] not among"),
         ('backend = "serial"', 'backend = "sim"', r"needs a \[sim\] section"),
+        ("baud = 115200", "baud = 9600.5", r"\[tracker\]\.baud = 9600\.5: expected an integer"),
+        ("baud = 115200", "timeout_s = 0", r"\[tracker\]\.timeout_s = 0: must be positive"),
+        ('cti = "producer.cti"', "cti = 7", r"\[camera\]\.cti = 7: expected a string"),
     ],
 )
 def test_bad_files_say_which_key_which_value_why(tmp_path: Path, old: str, new: str, message: str) -> None:

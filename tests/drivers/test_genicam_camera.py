@@ -85,3 +85,7 @@ def test_absent_device_or_producer_is_not_found(tmp_path: Path) -> None:
         GenICamCamera(VIKY).open()  # three devices and nothing to choose by
     with pytest.raises(DeviceNotFound, match="does not exist"):
         GenICamCamera(tmp_path / "absent.cti").open()
+    not_a_producer = tmp_path / "fake.cti"
+    not_a_producer.write_bytes(b"not a shared library")
+    with pytest.raises(DeviceNotFound, match="offers no camera"):
+        GenICamCamera(not_a_producer, serial="0").open()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import select
 import subprocess
 import sys
@@ -150,15 +151,44 @@ def test_unknown_nest_is_a_device_fault(tracker: SerialLaserTracker) -> None:
         tracker.measure_point("NOWHERE")
 
 
-def test_a_late_reply_is_never_taken_for_the_next_answer(sim_tracker: SimTracker,
-                                                          tracker: SerialLaserTracker) -> None:
+def test_a_late_reply_is_never_taken_for_the_next_answer(sim_tracker: SimTracker, tracker: SerialLaserTracker,
+                                                          caplog: pytest.LogCaptureFixture) -> None:
     inject(sim_tracker.port, "LATE", "1", "0.6")
     with pytest.raises(DeviceTimeout):
         tracker.measure_point("B1", timeout_s=0.3)
     time.sleep(0.5)  # the late B1 answer arrives while nobody waits
-    m = tracker.measure_point("B2")
+    with caplog.at_level(logging.WARNING, logger="monoguide.drivers.tracker"):
+        m = tracker.measure_point("B2")
     truth = sim_tracker.cell.tracker_targets()
     assert np.linalg.norm(m.point_mm - truth["B2"]) < 6 * NOISE_3D_MM  # B2, not the stale B1
+    assert np.linalg.norm(truth["B2"] - truth["B1"]) > 100.0  # so taking B1 would have failed above
+    assert len(_dropped(caplog)) == 1, "the late B1 reply must have arrived and been dropped"
+
+
+def test_a_late_reply_arriving_during_the_next_wait_is_dropped(sim_tracker: SimTracker, tracker: SerialLaserTracker,
+                                                               caplog: pytest.LogCaptureFixture) -> None:
+    # both requests are answered 0.6 s late: the stale B1 reply lands while the client waits for B3's
+    inject(sim_tracker.port, "LATE", "2", "0.6")
+    with pytest.raises(DeviceTimeout):
+        tracker.measure_point("B1", timeout_s=0.3)
+    with caplog.at_level(logging.WARNING, logger="monoguide.drivers.tracker"):
+        t0 = time.monotonic()
+        m = tracker.measure_point("B3", timeout_s=2.0)
+        waited = time.monotonic() - t0
+    truth = sim_tracker.cell.tracker_targets()
+    assert np.linalg.norm(m.point_mm - truth["B3"]) < 6 * NOISE_3D_MM
+    assert 0.45 < waited < 1.5  # it waited past the stale reply (due ~0.3 s in) for its own (~0.6 s)
+    assert len(_dropped(caplog)) == 1
+    assert tracker.measure_point("B2").nest == "B2"  # and the exchange is in step again
+
+
+def test_a_client_that_stops_reading_does_not_hang_the_simulator(sim_tracker: SimTracker) -> None:
+    with serial.Serial(sim_tracker.port, 115200, timeout=0.1, write_timeout=5.0) as raw:
+        for k in range(1, 3001):  # ~120 kB of replies, far more than the pty buffers
+            raw.write(f"{k} *IDN?\n".encode())
+        time.sleep(0.5)
+        sim_tracker.process.terminate()
+        assert sim_tracker.process.wait(3) == 0, "the simulator did not stop on SIGTERM"
 
 
 def test_simulator_gone_is_a_disconnect(sim_tracker: SimTracker, tracker: SerialLaserTracker) -> None:
@@ -171,3 +201,7 @@ def test_simulator_gone_is_a_disconnect(sim_tracker: SimTracker, tracker: Serial
 def test_absent_port_is_not_found(tmp_path: Path) -> None:
     with pytest.raises(DeviceNotFound, match="no-such-tty"):
         SerialLaserTracker(str(tmp_path / "no-such-tty")).open()
+
+
+def _dropped(caplog: pytest.LogCaptureFixture) -> list[str]:
+    return [r.getMessage() for r in caplog.records if "dropping late reply" in r.getMessage()]
