@@ -34,6 +34,8 @@ def solve(
     """
     if method not in ESTIMATORS:
         raise typer.BadParameter(f"{method!r}; choose one of {', '.join(sorted(ESTIMATORS))}", param_hint="--method")
+    if robust and method != "ml":
+        raise typer.BadParameter(f"the Huber loss belongs to --method ml, not {method!r}", param_hint="--robust")
     rows = [_solve_one(source, data, method, robust) for source, data in _read_records(records)]
     if json_output:
         for row in rows:

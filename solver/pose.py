@@ -67,9 +67,9 @@ def solve_pose(problem: PoseProblem, method: str = "ml", robust: bool = False) -
     """Estimate ``T_s1_w`` with the named estimator (see ``ESTIMATORS``)."""
     if method not in ESTIMATORS:
         raise ValueError(f"unknown estimator {method!r}; choose one of {sorted(ESTIMATORS)}")
-    if method == "ml":
-        return solve_ml(problem, robust=robust)
-    return ESTIMATORS[method](problem)
+    if robust and method != "ml":
+        raise ValueError(f"the robust (Huber) loss belongs to the ml estimator, not {method!r}")
+    return solve_ml(problem, robust=True) if robust else ESTIMATORS[method](problem)
 
 
 def solve_ml(problem: PoseProblem, T_init: np.ndarray | None = None, robust: bool = False) -> PoseResult:
@@ -247,16 +247,3 @@ def _solve_least_squares(A: np.ndarray, b: np.ndarray, what: str, check_rank: bo
     if not np.all(np.isfinite(x)) or (check_rank and np.linalg.cond(AtA) > 1e15):
         raise DegenerateGeometry(f"{what} do not determine all six degrees of freedom (rank deficient)")
     return x
-
-
-__all__ = [
-    "ESTIMATORS",
-    "PoseResult",
-    "initial_differential",
-    "initial_iterated",
-    "refine_ml",
-    "refine_paper",
-    "solve_ml",
-    "solve_paper",
-    "solve_pose",
-]

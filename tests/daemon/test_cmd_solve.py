@@ -76,3 +76,10 @@ def test_missing_file_is_an_error_line_not_a_traceback(tmp_path):
     first, second = (json.loads(line) for line in run.stdout.splitlines())
     assert first["status"] == "error" and "cannot read" in first["error"]["message"]
     assert second["status"] == "ok"
+
+
+def test_robust_only_with_the_ml_estimator():
+    run = CliRunner().invoke(app, ["solve", "--robust", "--method", "paper", str(EXAMPLE)])
+    assert run.exit_code != 0 and "Huber" in run.output
+    run = CliRunner().invoke(app, ["solve", "--json", "--robust", str(EXAMPLE)])
+    assert run.exit_code == 0 and json.loads(run.stdout)["method"] == "ml-huber"
