@@ -10,8 +10,17 @@ wrong picks; the baseline a user writes first (Otsu, contours, cv2.fitEllipse, n
 size) on the same region; and the Cramér-Rao bound of the centre, sigma^2 (J^T J)^-1 with J the
 derivative of the noise-free image w.r.t. the centre. Times on one core.
 
-    .venv/bin/python benchmarks/bench_holes.py            # 120 frames, about three minutes
-    .venv/bin/python benchmarks/bench_holes.py --quick    # 16 frames, about half a minute
+Oblique rows (issue 8): the planned layout tilts each camera so that its line of sight meets the sheet
+30 or 40 deg from the normal, the hole near the image centre at a nominal standoff of 575-775 mm; the part
+then deviates over the full envelope, +-50 mm and +-5 deg on every axis about a centre up to 0.8 m from
+the hole, so the hole wanders in the image, its depth spans 550-800 mm and its viewing angle +-5 deg.
+The camera is focused at 652 mm with the aperture that blurs 550 and 800 mm by a 2 px circle (thin lens,
+on top of the lens blur). Same photometry, clutter, glare and edge draws; rendered through a 640 x 640
+crop of the same lens (exact: distortion lives in normalised coordinates) to keep the run short.
+
+    .venv/bin/python benchmarks/bench_holes.py                 # all rows, about a minute
+    .venv/bin/python benchmarks/bench_holes.py --quick         # fewer frames, about 15 s
+    .venv/bin/python benchmarks/bench_holes.py --rows oblique  # only the oblique rows
 """
 
 from __future__ import annotations
@@ -36,12 +45,15 @@ from monoguide.drivers.sim.hole_renderer import (
     HoleSpec,
     PartEdge,
     RenderSettings,
+    blur_sigma_at,
+    defocus_for_depth_of_field,
     render_expected_image,
     render_view,
     scatter_clutter,
 )
 from monoguide.solver import frames
 from monoguide.solver.camera import PAPER_CAMERA, CameraModel
+from monoguide.solver.ellipse import fit_ellipse
 from monoguide.solver.errors import FeatureNotFound
 from monoguide.solver.holes import find_holes, measure_hole, perspective_correction
 
@@ -49,6 +61,11 @@ CONTRASTS = {"strong": (190.0, 25.0), "medium": (160.0, 60.0), "weak": (125.0, 8
 DISTANCE_MM = 650.0
 WRONG_PICK_PX = 1.0
 NOMINAL_OFFSET_PX = 15.0
+OBLIQUE_TILTS_DEG = (30.0, 40.0)
+DEPTH_RANGE_MM = (550.0, 800.0)
+ENVELOPE_MM = 50.0
+ENVELOPE_DEG = 5.0
+CROP_PX = 640
 
 
 @dataclass
@@ -69,12 +86,21 @@ class Tally:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--frames", type=int, default=120)
-    parser.add_argument("--quick", action="store_true", help="16 frames")
+    parser.add_argument("--oblique-frames", type=int, default=60, help="frames per oblique tilt")
+    parser.add_argument("--quick", action="store_true", help="16 frames, 12 per oblique tilt")
+    parser.add_argument("--rows", choices=("all", "planar", "oblique"), default="all")
     parser.add_argument("--seed", type=int, default=3)
     args = parser.parse_args()
     n_frames = 16 if args.quick else args.frames
     cv2.setNumThreads(1)
-    rng = np.random.default_rng(args.seed)
+    if args.rows in ("all", "planar"):
+        _run_planar(n_frames, args.seed)
+    if args.rows in ("all", "oblique"):
+        _run_oblique(12 if args.quick else args.oblique_frames, args.seed)
+
+
+def _run_planar(n_frames: int, seed: int) -> None:
+    rng = np.random.default_rng(seed)
     groups: dict[str, Tally] = {}
     t_roi: list[float] = []
     t_full: list[float] = []
@@ -112,24 +138,68 @@ def main() -> None:
             crb = _crb_center(PAPER_CAMERA, scene.T_c_w, hole, scene.settings, truth)
             in_full = any(np.hypot(*(h.center - truth)) < WRONG_PICK_PX for h in full)
             for tally in tallies:
-                tally.holes += 1
-                tally.crb.append(crb)
-                tally.full_frame_found += in_full
-                if center is not None:
-                    err = float(np.hypot(*(center - truth)))
-                    if err > WRONG_PICK_PX:
-                        tally.wrong += 1
-                    else:
-                        tally.found += 1
-                        tally.raw.append(err)
-                        tally.corrected.append(float(np.hypot(*(center - correction - truth))))
-                if base is not None and np.hypot(*(base - truth)) < WRONG_PICK_PX:
-                    tally.baseline_found += 1
-                    tally.baseline.append(float(np.hypot(*(base - truth))))
+                _tally_hole(tally, center, correction, truth, base, crb, in_full)
         t_roi.append(elapsed_roi)
         t_base.append(elapsed_base)
-    _print_accuracy(groups, n_frames)
+    _print_accuracy(groups, f"{n_frames} frames 2456 x 2058")
     _print_times(t_roi, t_full, t_base)
+
+
+def _run_oblique(n_frames: int, seed: int) -> None:
+    """The oblique rows: ``n_frames`` per tilt of :data:`OBLIQUE_TILTS_DEG`, one hole each."""
+    rng = np.random.default_rng(seed + 1000)
+    groups: dict[str, Tally] = {}
+    depths: list[float] = []
+    angles: list[float] = []
+    for tilt in OBLIQUE_TILTS_DEG:
+        for i in range(n_frames):
+            contrast = list(CONTRASTS)[i % len(CONTRASTS)]
+            scene, camera, depth, angle = _draw_oblique_scene(rng, contrast, tilt)
+            depths.append(depth)
+            angles.append(angle)
+            view = render_view(camera, scene.T_c_w, scene.holes, scene.settings, rng, scene.clutter)
+            full = find_holes(view.image)
+            hole, truth = scene.holes[0], view.centers_px[0]
+            depth_group = "550-650 mm" if depth < 650.0 else "650-800 mm"
+            keys = [f"oblique {tilt:.0f} deg", f"obl {tilt:.0f} {contrast}", f"oblique depth {depth_group}"]
+            tallies = [groups.setdefault(key, Tally()) for key in keys]
+            r_px = _imaged_radius_px(camera, scene.T_c_w, hole)
+            expected = truth + rng.normal(0.0, NOMINAL_OFFSET_PX / math.sqrt(2.0), 2)
+            r_expected = r_px * rng.uniform(0.95, 1.05)
+            try:
+                center = measure_hole(view.image, expected, r_expected, max_offset_px=3.0 * r_expected).center
+            except FeatureNotFound:
+                center = None
+            half = 3.0 * r_expected + 40.0
+            roi = (int(expected[0] - half), int(expected[1] - half), int(2 * half), int(2 * half))
+            base = _baseline(view.image, roi, expected, r_expected)
+            correction = perspective_correction(camera, scene.T_c_w_approx, hole.center_w,
+                                                np.asarray(hole.normal_w), hole.radius_mm)
+            crb = _crb_center(camera, scene.T_c_w, hole, scene.settings, truth)
+            in_full = any(np.hypot(*(h.center - truth)) < WRONG_PICK_PX for h in full)
+            for tally in tallies:
+                _tally_hole(tally, center, correction, truth, base, crb, in_full)
+    _print_accuracy(groups, f"oblique: {n_frames} frames per tilt, {CROP_PX} x {CROP_PX} crops, one hole each")
+    print(f"depth {min(depths):.0f} .. {max(depths):.0f} mm, line of sight {min(angles):.1f} .. {max(angles):.1f} "
+          f"deg from the sheet normal")
+
+
+def _tally_hole(tally: Tally, center: np.ndarray | None, correction: np.ndarray, truth: np.ndarray,
+                base: np.ndarray | None, crb: float, in_full: bool) -> None:
+    tally.holes += 1
+    tally.crb.append(crb)
+    tally.full_frame_found += in_full
+    if center is not None:
+        err = float(np.hypot(*(center - truth)))
+        if err > WRONG_PICK_PX:
+            tally.wrong += 1
+        else:
+            tally.found += 1
+            tally.raw.append(err)
+            tally.corrected.append(float(np.hypot(*(center - correction - truth))))
+    if base is not None and np.hypot(*(base - truth)) < WRONG_PICK_PX:
+        tally.baseline_found += 1
+        tally.baseline.append(float(np.hypot(*(base - truth))))
 
 
 @dataclass
@@ -173,6 +243,77 @@ def _draw_scene(rng: np.random.Generator, contrast: str) -> Scene:
     return Scene(T_c_w, T_c_w_approx, holes, clutter, settings)
 
 
+def _draw_oblique_scene(rng: np.random.Generator, contrast: str,
+                        tilt_deg: float) -> tuple[Scene, CameraModel, float, float]:
+    """One hole on the sheet z = 0 seen along a line of sight ``tilt_deg`` from its normal, then the part
+    deviated within the envelope; returns the scene (in a crop camera), the crop camera, the hole's depth
+    (mm) and its actual viewing angle (deg)."""
+    f_px = math.sqrt(PAPER_CAMERA.fx * PAPER_CAMERA.fy)
+    focus_mm, aperture_mm = defocus_for_depth_of_field(f_px, *DEPTH_RANGE_MM, circle_px=2.0)
+    while True:
+        radius = rng.uniform(4.0, 10.0)
+        hole = HoleSpec(center_w=np.zeros(3), radius_mm=radius)
+        azimuth = rng.uniform(0.0, 2.0 * math.pi)
+        tilt = math.radians(tilt_deg)
+        sight = np.array([math.sin(tilt) * math.cos(azimuth), math.sin(tilt) * math.sin(azimuth), math.cos(tilt)])
+        T_c_w_nominal = _look_at(rng.uniform(575.0, 775.0) * sight, rng.normal(0.0, 20.0, 3) * (1, 1, 0),
+                                 rng.uniform(0.0, 2.0 * math.pi))
+        centre = np.array([rng.uniform(-800.0, 800.0), rng.uniform(-500.0, 500.0), 0.0])
+        rotation = frames.rotvec_to_matrix(np.radians(rng.uniform(-ENVELOPE_DEG, ENVELOPE_DEG, 3)))
+        deviation = frames.make_T(rotation, centre - rotation @ centre + rng.uniform(-ENVELOPE_MM, ENVELOPE_MM, 3))
+        T_c_w = T_c_w_nominal @ deviation
+        center_c = T_c_w[:3, :3] @ hole.center_w + T_c_w[:3, 3]
+        truth = PAPER_CAMERA.project(center_c[None])[0]
+        depth = float(center_c[2])
+        margin = 100.0
+        if not (DEPTH_RANGE_MM[0] <= depth <= DEPTH_RANGE_MM[1] and margin <= truth[0] <= PAPER_CAMERA.width - margin
+                and margin <= truth[1] <= PAPER_CAMERA.height - margin):
+            continue
+        normal_c = T_c_w[:3, :3] @ np.asarray(hole.normal_w, dtype=float)
+        angle = math.degrees(math.acos(abs(float(normal_c @ center_c)) / np.linalg.norm(center_c)))
+        break
+    x0 = int(truth[0]) - CROP_PX // 2 + int(rng.integers(-150, 151))
+    y0 = int(truth[1]) - CROP_PX // 2 + int(rng.integers(-150, 151))
+    camera = replace(PAPER_CAMERA, width=CROP_PX, height=CROP_PX, cx=PAPER_CAMERA.cx - x0, cy=PAPER_CAMERA.cy - y0)
+    T_c_w_approx = frames.make_T(
+        frames.rotvec_to_matrix(rng.normal(0.0, math.radians(0.2) / math.sqrt(3.0), 3)) @ T_c_w[:3, :3],
+        T_c_w[:3, 3] + rng.normal(0.0, 1.0 / math.sqrt(3.0), 3))
+    clutter = scatter_clutter(hole, rng, count=3)
+    sheet, hole_grey = CONTRASTS[contrast]
+    settings = RenderSettings(
+        blur_sigma_px=rng.uniform(0.7, 1.5), noise_sigma=rng.uniform(1.5, 4.0), sheet_grey=sheet,
+        hole_grey=hole_grey, light_gradient=rng.uniform(0.0, 0.25), light_direction_deg=rng.uniform(0, 360),
+        focus_distance_mm=focus_mm, aperture_mm=aperture_mm)
+    if rng.random() < 0.5:
+        settings = replace(settings, glare=_glare_away_from(rng, T_c_w, [hole], camera))
+    if rng.random() < 0.5:
+        settings = replace(settings, part_edge=_edge_away_from(rng, [hole, *clutter]))
+    return Scene(T_c_w, T_c_w_approx, [hole], clutter, settings), camera, depth, angle
+
+
+def _look_at(eye: np.ndarray, target: np.ndarray, roll: float) -> np.ndarray:
+    """``T_c_w`` of a camera at ``eye`` (3,) looking at ``target`` (3,), turned by ``roll`` rad about its axis."""
+    z = target - eye
+    z /= np.linalg.norm(z)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R_w_c = np.column_stack([x, y, z]) @ frames.rotvec_to_matrix(np.array([0.0, 0.0, roll]))
+    return frames.make_T(R_w_c.T, -R_w_c.T @ eye)
+
+
+def _imaged_radius_px(camera: CameraModel, T_c_w: np.ndarray, hole: HoleSpec) -> float:
+    """sqrt(a b) of the rim's image: foreshortened by the viewing angle."""
+    normal = np.asarray(hole.normal_w, dtype=float)
+    e1 = np.cross(normal, [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(normal, e1)
+    t = np.linspace(0.0, 2.0 * math.pi, 180, endpoint=False)
+    rim = hole.center_w + hole.radius_mm * (np.cos(t)[:, None] * e1 + np.sin(t)[:, None] * e2)
+    return fit_ellipse(camera.project(rim @ T_c_w[:3, :3].T + T_c_w[:3, 3])).mean_radius
+
+
 def _pixel_on_sheet(T_c_w: np.ndarray, pixel: np.ndarray) -> np.ndarray:
     ray_c = PAPER_CAMERA.pixels_to_rays(pixel[None, :])[0]
     T_w_c = frames.invert(T_c_w)
@@ -180,11 +321,12 @@ def _pixel_on_sheet(T_c_w: np.ndarray, pixel: np.ndarray) -> np.ndarray:
     return origin - origin[2] / direction[2] * direction
 
 
-def _glare_away_from(rng: np.random.Generator, T_c_w: np.ndarray, holes: list[HoleSpec]) -> Glare:
+def _glare_away_from(rng: np.random.Generator, T_c_w: np.ndarray, holes: list[HoleSpec],
+                     camera: CameraModel = PAPER_CAMERA) -> Glare:
     sigma = rng.uniform(30.0, 80.0)
-    centers = [PAPER_CAMERA.project((T_c_w[:3, :3] @ h.center_w + T_c_w[:3, 3])[None])[0] for h in holes]
+    centers = [camera.project((T_c_w[:3, :3] @ h.center_w + T_c_w[:3, 3])[None])[0] for h in holes]
     while True:
-        c = np.array([rng.uniform(0, PAPER_CAMERA.width), rng.uniform(0, PAPER_CAMERA.height)])
+        c = np.array([rng.uniform(0, camera.width), rng.uniform(0, camera.height)])
         if all(np.hypot(*(c - p)) > 3.0 * sigma + 60.0 for p in centers):
             return Glare(center_px=(float(c[0]), float(c[1])), sigma_px=sigma, peak_grey=rng.uniform(40.0, 100.0))
 
@@ -240,7 +382,9 @@ def _crb_center(camera: CameraModel, T_c_w: np.ndarray, hole: HoleSpec, settings
     Rendered in a crop around the hole by a camera with the principal point moved (distortion lives
     in normalised coordinates, so the crop is exact); the light field is frozen at its local value.
     """
-    half = int(_true_radius_px(T_c_w, hole) + 6.0 * settings.blur_sigma_px + 8)
+    depth = float((T_c_w[:3, :3] @ hole.center_w + T_c_w[:3, 3])[2])
+    sigma = float(blur_sigma_at(depth, settings, math.sqrt(camera.fx * camera.fy)))
+    half = int(_true_radius_px(T_c_w, hole) + 6.0 * sigma + 8)
     x0, y0 = int(truth[0]) - half, int(truth[1]) - half
     crop_cam = replace(camera, width=2 * half, height=2 * half, cx=camera.cx - x0, cy=camera.cy - y0)
     a = math.cos(math.radians(settings.light_direction_deg))
@@ -272,21 +416,23 @@ def _rms(values: list[float]) -> float:
     return math.sqrt(sum(v * v for v in values) / len(values)) if values else math.nan
 
 
-def _print_accuracy(groups: dict[str, Tally], n_frames: int) -> None:
-    print(f"\nHole centres, {n_frames} frames 2456 x 2058, errors |e| px against the projected 3-D centre")
-    header = (f"{'condition':<18}{'holes':>6}{'found':>7}{'wrong':>6}{'med raw':>9}{'RMS raw':>9}{'max raw':>9}"
+def _print_accuracy(groups: dict[str, Tally], what: str) -> None:
+    print(f"\nHole centres, {what}, errors |e| px against the projected 3-D centre")
+    header = (f"{'condition':<26}{'holes':>6}{'found':>7}{'wrong':>6}{'med raw':>9}{'RMS raw':>9}{'max raw':>9}"
               f"{'RMS corr':>9}{'max corr':>9}{'CRB':>7}{'ours/CRB':>9}  |{'Otsu+fitEllipse: found':>23}"
               f"{'RMS':>7}{'max':>7}")
     print(header)
     print("-" * len(header))
-    for name, t in sorted(groups.items(), key=lambda kv: (kv[0] != "all", kv[0])):
+    for name, t in sorted(groups.items(), key=lambda kv: (kv[0] != "all", not kv[0].startswith("oblique "),
+                                                           kv[0])):
         crb = _rms(t.crb)
-        print(f"{name:<18}{t.holes:>6}{t.found:>7}{t.wrong:>6}{statistics.median(t.raw or [math.nan]):>9.4f}"
+        print(f"{name:<26}{t.holes:>6}{t.found:>7}{t.wrong:>6}{statistics.median(t.raw or [math.nan]):>9.4f}"
               f"{_rms(t.raw):>9.4f}{max(t.raw, default=math.nan):>9.4f}{_rms(t.corrected):>9.4f}"
               f"{max(t.corrected, default=math.nan):>9.4f}{crb:>7.4f}{_rms(t.corrected) / crb:>9.2f}  |"
               f"{t.baseline_found:>20}/{t.holes:<2}{_rms(t.baseline):>7.3f}{max(t.baseline, default=math.nan):>7.3f}")
-    full = groups["all"]
-    print(f"recall of find_holes on the full frame (no ROI, no expectation): {full.full_frame_found}/{full.holes}")
+    totals = [t for name, t in groups.items() if name == "all" or name.endswith(" deg")]  # each hole once
+    found, holes = sum(t.full_frame_found for t in totals), sum(t.holes for t in totals)
+    print(f"recall of find_holes on the whole image (no ROI, no expectation): {found}/{holes}")
 
 
 def _print_times(t_roi: list[float], t_full: list[float], t_base: list[float]) -> None:

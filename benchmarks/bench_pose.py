@@ -1,14 +1,18 @@
 """Pose-solver benchmark on a synthetic paper-like roof cell (issue 2). Prints tables; asserts nothing.
 
-Cell: Table 1 holes, Table 2 camera, four views 650 mm above the holes, each hole imaged a quarter of
-the image from the edge. Seeded deviations of the part. For each pixel noise and deviation range, every
+Cell: Table 1 holes, Table 2 camera, one view per hole. ``--layout planned`` (the default): the measuring
+poses of ``config/sim-cell.toml``, planned by ``solver.planning.plan_layout`` for +-50 mm / +-5 deg (each
+camera tilted towards its hole, issue 8); ``--layout today``: the old layout, four views 650 mm straight
+above the holes, each hole imaged a quarter of the image from the edge. Seeded deviations of the part; the
+"±5°/50" rows are the whole envelope. For each pixel noise and deviation range, every
 estimator's RMS error against the truth, its ratio to the Cramer-Rao bound (CRB), how well its own
 reported covariance predicts its error, the convergence rate and the median solve time; PoseLib's
 ``refine_generalized_absolute_pose`` runs on the same data as the peer, started from the reference pose
 (as a user would) and from monoguide's initial value (to compare the refinements alone).
 
-    .venv/bin/python benchmarks/bench_pose.py            # full run (about ten minutes)
-    .venv/bin/python benchmarks/bench_pose.py --quick    # a few seconds
+    .venv/bin/python benchmarks/bench_pose.py                  # full run (about ten minutes)
+    .venv/bin/python benchmarks/bench_pose.py --quick          # a few seconds
+    .venv/bin/python benchmarks/bench_pose.py --layout today   # the table of the old straight-down layout
 """
 
 from __future__ import annotations
@@ -19,17 +23,20 @@ import statistics
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
+from monoguide.daemon.config import load_cell_config
 from monoguide.solver import frames
 from monoguide.solver.errors import MonoguideError
 from monoguide.solver.pose import initial_iterated, solve_ml, solve_paper
 from monoguide.solver.problem import PoseProblem
-from monoguide.solver.synthetic import SyntheticCell, deviated_part, paper_roof_cell, perturbed_views
+from monoguide.solver.synthetic import SyntheticCell, deviated_part, layout_cell, paper_roof_cell, perturbed_views
 from monoguide.solver.uncertainty import predicted_covariance
 
 GROSS_DEG, GROSS_MM = 0.5, 5.0  # an error beyond either is a failure to converge
+SIM_CELL = Path(__file__).parents[1] / "config" / "sim-cell.toml"
 MIN_DEPTH_MM = 200.0  # deviations that bring a hole closer than this to its camera are not drawn
 
 
@@ -65,10 +72,12 @@ def main() -> None:
     parser.add_argument("--trials", type=int, default=10000, help="trials per configuration")
     parser.add_argument("--quick", action="store_true", help="200 trials, sigma 0.1 px only")
     parser.add_argument("--seed", type=int, default=20261122)
+    parser.add_argument("--layout", choices=("planned", "today"), default="planned",
+                        help="planned: config/sim-cell.toml's measuring poses; today: straight down from 650 mm")
     args = parser.parse_args()
     trials = 200 if args.quick else args.trials
     sigmas = (0.1,) if args.quick else (0.05, 0.1, 0.3)
-    cell = paper_roof_cell()
+    cell, layout = _cell(args.layout)
     peer = _poselib_peer(cell)
     estimators: dict[str, Callable[[PoseProblem], tuple[np.ndarray, np.ndarray | None]]] = {
         "ml (default)": lambda p: _pose_and_cov(solve_ml(p)),
@@ -77,7 +86,7 @@ def main() -> None:
     if peer is not None:
         estimators["poselib, ref"] = lambda p: peer(p, p.T_s1_w0)
         estimators["poselib, init"] = lambda p: peer(p, initial_iterated(p)[0])
-    print(f"monoguide pose benchmark: paper roof cell, 4 views at 650 mm, {trials} trials per row, seed {args.seed}")
+    print(f"monoguide pose benchmark: paper roof cell, {layout}, {trials} trials per row, seed {args.seed}")
     print("ratio CRB = observed RMS / Cramer-Rao bound; ratio cov = observed RMS / RMS its own covariance predicts")
     print(f"convergence: error below {GROSS_DEG} deg and {GROSS_MM} mm; time: median per solve, this process")
     header = (
@@ -91,6 +100,17 @@ def main() -> None:
             rng = np.random.default_rng([args.seed, int(sigma * 1000), int(max_deg)])
             _run_configuration(cell, estimators, rng, trials, sigma, max_deg, max_mm)
     _repeatability_section(cell, np.random.default_rng([args.seed, 7]), trials)
+
+
+def _cell(layout: str) -> tuple[SyntheticCell, str]:
+    if layout == "today":
+        return paper_roof_cell(), "4 views straight down from 650 mm, holes a quarter from the edge (today)"
+    config = load_cell_config(SIM_CELL)
+    T_w0_cf = frames.invert(config.reference.T_cf_w0)
+    poses = [T_w0_cf @ p.T_cf_si for p in config.measuring_poses]
+    standoff = np.mean([np.linalg.norm(T[:3, 3] - config.part.points_w[i]) for i, T in enumerate(poses)])
+    return (layout_cell(config.camera.intrinsics, config.part.points_w, poses),
+            f"4 views of config/sim-cell.toml planned for ±50 mm/±5° (tilted, about {standoff:.0f} mm)")
 
 
 def _run_configuration(cell, estimators, rng, trials, sigma, max_deg, max_mm) -> None:

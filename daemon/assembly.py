@@ -4,6 +4,10 @@ Runtime code asks this module for a :class:`~monoguide.drivers.camera.Camera` or
 :class:`~monoguide.drivers.tracker.LaserTracker` and never learns which back-end it holds. The simulated
 back-ends read a :class:`SimCell` built here from the same config; the simulated tracker runs as its own
 process (``monoguide sim-cell``), which writes where it listens into a small JSON state file.
+
+This is the only module of the daemon allowed to import ``monoguide.drivers.sim`` (the import-linter
+contract in ``pyproject.toml``), and it does so inside the builders, only when the config asks for a
+simulated back-end: a real cell never loads the simulator or its renderer.
 """
 
 from __future__ import annotations
@@ -11,15 +15,20 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from monoguide.daemon.config import CellConfig, default_sim_state_file
 from monoguide.drivers.camera import Camera, CameraSettings
 from monoguide.drivers.errors import ConfigError, DeviceNotFound
 from monoguide.drivers.genicam_camera import GenICamCamera
-from monoguide.drivers.sim.camera import SimCamera
-from monoguide.drivers.sim.cell import SimCell, SimCellSpec, SimTarget
+from monoguide.drivers.robot import Robot
 from monoguide.drivers.tracker import LaserTracker, SerialLaserTracker
+from monoguide.solver.frames import compose, invert
+
+if TYPE_CHECKING:
+    from monoguide.drivers.sim.cell import SimCell, SimCellSpec
 
 SIM_STATE_FORMAT = "monoguide.sim-cell-state/1"
 
@@ -36,6 +45,8 @@ def build_camera(config: CellConfig, sim_cell: SimCell | None = None) -> Camera:
     if c.backend == "genicam":
         assert c.cti is not None  # the config loader insists
         return GenICamCamera(c.cti, serial=c.serial, user_name=c.user_name)
+    from monoguide.drivers.sim.camera import SimCamera  # only a simulated cell loads the simulator
+
     return SimCamera(sim_cell if sim_cell is not None else build_sim_cell(config))
 
 
@@ -55,8 +66,52 @@ def build_tracker(config: CellConfig, state_file: Path | None = None) -> LaserTr
     return SerialLaserTracker(port, t.baud, t.timeout_s)
 
 
+def build_robot(config: CellConfig, state_file: Path | None = None) -> Robot:
+    """The cell's robot, not yet opened: UR over RTDE or KUKA over its XML channel. A simulated controller
+    speaks the same protocol; where it listens is read from the state file of a running ``monoguide sim-cell``.
+    The adapter checks each in-position report against the taught flange poses the config implies."""
+    from monoguide.drivers.kuka_robot import KukaRobot
+    from monoguide.drivers.ur_robot import UrRobot
+
+    r = config.robot
+    if r is None:
+        raise ConfigError(f"{config.path}: no [robot] section")
+    host, port = r.host, r.port
+    if r.simulated:
+        path = state_file or sim_state_file(config)
+        listens = read_sim_state(path).get("robot", {})
+        if listens.get("backend") != r.backend or not listens.get("host"):
+            raise DeviceNotFound(f"simulated robot: {path} names no {r.backend} controller (is sim-cell running "
+                                 f"with this config?)")
+        host, port = str(listens["host"]), int(listens["port"])
+    timeouts = {"connect_timeout_s": r.connect_timeout_s, "move_timeout_s": r.move_timeout_s,
+                "ack_timeout_s": r.ack_timeout_s, "stale_timeout_s": r.stale_timeout_s,
+                "T_b_f_taught": taught_flange_poses(config), "pose_tolerance_mm": r.pose_tolerance_mm,
+                "pose_tolerance_deg": r.pose_tolerance_deg}
+    if r.make == "ur":
+        return UrRobot(host, port, frequency_hz=r.rtde_frequency_hz, **timeouts)
+    return KukaRobot(host, port, **timeouts)
+
+
+def taught_flange_poses(config: CellConfig) -> tuple[np.ndarray, ...]:
+    """``T_b_f`` of each measuring pose: as taught (``T_b_f``), else from the calibrated camera pose,
+    ``inv(T_cf_b) T_cf_si inv(T_f_c)``; empty when the config cannot say (then no pose check)."""
+    T_cf_b, T_f_c = config.reference.T_cf_b, config.camera.T_f_c
+    poses = []
+    for p in config.measuring_poses:
+        if p.T_b_f is not None:
+            poses.append(p.T_b_f)
+        elif T_cf_b is not None and T_f_c is not None:
+            poses.append(compose(invert(T_cf_b), p.T_cf_si, invert(T_f_c)))
+        else:
+            return ()
+    return tuple(poses)
+
+
 def sim_cell_spec(config: CellConfig) -> SimCellSpec:
     """The simulated cell's definition from the cell config (``[sim]`` with the shared sections)."""
+    from monoguide.drivers.sim.cell import SimCellSpec, SimTarget
+
     sim = config.sim
     if sim is None:
         raise ConfigError(f"{config.path}: the simulated cell needs a [sim] section")
@@ -82,11 +137,15 @@ def sim_cell_spec(config: CellConfig) -> SimCellSpec:
         benchmarks_cf=dict(sim.benchmarks),
         tool_smr_f=sim.tool_smr_f,
         targets=tuple(SimTarget(t.name, t.T_cf_t, t.points_t) for t in sim.targets),
+        focus_distance_mm=sim.focus_distance_mm,
+        aperture_mm=sim.aperture_mm,
     )
 
 
 def build_sim_cell(config: CellConfig) -> SimCell:
     """A fresh simulated cell (seeded from ``[sim] seed``)."""
+    from monoguide.drivers.sim.cell import SimCell
+
     return SimCell(sim_cell_spec(config))
 
 

@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+from importlib import metadata
+from typing import Annotated
+
 import typer
 
 from monoguide.daemon import cmd_detect, cmd_plan, cmd_probe, cmd_simcell, cmd_solve
 
+HELP = "Vision-guided robotics: measure a large part with a flange camera, write the robot's base offset."
+
 app = typer.Typer(
     name="monoguide",
-    help="Vision-guided robotics: measure a large part with a flange camera, write the robot's base offset.",
+    help=HELP,
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
@@ -18,6 +23,21 @@ app.command("plan")(cmd_plan.plan)
 app.command("detect")(cmd_detect.detect)
 app.command("probe")(cmd_probe.probe)
 app.command("sim-cell")(cmd_simcell.sim_cell)
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        typer.echo(f"monoguide {metadata.version('monoguide')}")
+        raise typer.Exit()
+
+
+@app.callback(help=HELP)
+def _options(
+    version: Annotated[
+        bool, typer.Option("--version", callback=_print_version, is_eager=True, help="Print the version and exit.")
+    ] = False,
+) -> None:
+    """Options that come before the command."""
 
 
 def main() -> None:

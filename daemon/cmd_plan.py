@@ -1,151 +1,277 @@
-"""``monoguide plan``: where the holes should land in the image (Sec. 4, Fig. 5), and what a layout gives."""
+"""``monoguide plan``: the measuring layout of a cell.
+
+``--layout``: plan the measuring poses of the cell in ``--config`` for the whole deviation envelope
+(``solver.planning.plan_layout``) and print them beside the cell's current ones; ``--write`` a copy of the
+cell file with them, ``--out`` a picture. Without ``--layout``: the paper's Fig. 5 study (Sec. 4) for the
+cell's camera and holes (the paper's roof without ``--config``). ``--record`` adds the predicted
+uncertainty of a measurement record's layout. Exit status: 0 done, 1 a failure (config, refused plan,
+bad record, unwritable output; named on standard error), 2 a bad option.
+"""
 
 from __future__ import annotations
 
 import json
 import math
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import cv2
 import numpy as np
 import typer
-from rich.console import Console
-from rich.table import Table
+from rich.markup import escape
 
+from monoguide.daemon.config import load_cell_config
+from monoguide.daemon.console import stderr_console, stdout_console
+from monoguide.daemon.plan_drawing import draw_layout
+from monoguide.daemon.plan_layout import CellLayout, cell_layout, planned_pose_names, write_config_with_layout
+from monoguide.daemon.plan_report import fig5_report, print_fig5, print_layout
 from monoguide.solver.camera import PAPER_CAMERA
 from monoguide.solver.errors import MonoguideError
-from monoguide.solver.planning import (
-    UncertaintyMap,
-    layout_covariance,
-    look_at_poses,
-    quarter_targets,
-    uncertainty_map,
-)
+from monoguide.solver.frames import compose
+from monoguide.solver.planning import LayoutAssessment, assess_layout, plan_layout, pose_sigmas, uncertainty_map
 from monoguide.solver.record import parse_record
 from monoguide.solver.synthetic import PAPER_ROOF_POINTS_W
 from monoguide.solver.uncertainty import predicted_covariance
 
 
+def _finite_positive(value: float | None) -> float | None:
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise typer.BadParameter(f"must be a finite number > 0, got {value}")
+    return value
+
+
+def _png(value: Path | None) -> Path | None:
+    if value is not None and value.suffix.lower() != ".png":
+        raise typer.BadParameter(f"expected a .png file, got {str(value)!r}")
+    return value
+
+
 def plan(
-    out: Annotated[Path | None, typer.Option(help="Write the Fig. 5 map (uncertainty vs image position), PNG.")] = None,
-    record: Annotated[
-        Path | None, typer.Option(help="Report the predicted uncertainty of this record's layout (views, points).")
+    config: Annotated[Path | None, typer.Option("--config", "-c", help="The cell config (TOML) to plan.")] = None,
+    layout: Annotated[bool, typer.Option("--layout", help="Plan the measuring poses for the whole envelope.")] = False,
+    write: Annotated[
+        Path | None, typer.Option(help="With --layout: write a copy of the cell config with the planned poses.")
     ] = None,
-    standoff_mm: Annotated[float, typer.Option(help="Camera distance above the holes, mm.")] = 650.0,
-    sigma_px: Annotated[float, typer.Option(help="Standard deviation of a hole centre, px.")] = 0.1,
-    steps: Annotated[int, typer.Option(help="Grid steps of the map along each image axis.")] = 25,
-    json_output: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
+    out: Annotated[
+        Path | None, typer.Option(callback=_png, help="PNG: the layout (with --layout), else the Fig. 5 map.")
+    ] = None,
+    record: Annotated[
+        Path | None, typer.Option(help="Also report the predicted uncertainty of this record's layout.")
+    ] = None,
+    standoff_mm: Annotated[
+        float, typer.Option(callback=_finite_positive, help="Fig. 5: camera distance above the holes, mm.")
+    ] = 650.0,
+    sigma_px: Annotated[
+        float | None,
+        typer.Option(callback=_finite_positive,
+                     help="Hole-centre noise, px (default: the config's layout sigma_px, or 0.1)."),
+    ] = None,
+    steps: Annotated[int, typer.Option(min=2, help="Fig. 5: grid steps of the map along each image axis.")] = 25,
+    json_output: Annotated[bool, typer.Option("--json", help="One JSON object on standard output.")] = False,
 ) -> None:
-    """Plan measuring poses for the paper's roof (Table 1 holes, Table 2 camera): the map of the pose
-    uncertainty as every hole moves from the image centre outwards, and the recommended image positions."""
-    console = Console()
-    if sigma_px <= 0 or standoff_mm <= 0 or steps < 2:
-        raise typer.BadParameter(
-            f"need sigma_px > 0, standoff_mm > 0, steps >= 2 (got {sigma_px}, {standoff_mm}, {steps})"
-        )
-    camera, points_w = PAPER_CAMERA, PAPER_ROOF_POINTS_W
-    fig5 = uncertainty_map(camera, points_w, standoff_mm, steps=steps)
-    targets = quarter_targets(camera, points_w)
-    recommended = _predict(camera, points_w, standoff_mm, targets, sigma_px)
-    report: dict = {
-        "camera": f"{camera.width} x {camera.height} px, f = {camera.fx:.1f} px",
-        "standoff_mm": standoff_mm,
-        "sigma_px": sigma_px,
-        "recommended_pixels": targets.round(1).tolist(),
-        "recommended": recommended,
-        "map": {
-            "offset_u_px": fig5.offsets_u_px.round(1).tolist(),
-            "offset_v_px": fig5.offsets_v_px.round(1).tolist(),
-            "sigma_trans_mm_per_px": fig5.sigma_trans_mm.round(5).tolist(),
-            "sigma_rot_deg_per_px": fig5.sigma_rot_deg.round(6).tolist(),
-        },
-    }
+    """Plan the measuring poses of a cell (--layout), or show the paper's Fig. 5 study for its camera."""
+    if layout and config is None:
+        raise typer.BadParameter("--layout plans the cell of a config file: give --config CELL.toml",
+                                 param_hint="--config")
+    if write is not None and not layout:
+        raise typer.BadParameter("writes the planned poses: use it with --layout", param_hint="--write")
+    if write is not None and config is not None and write.resolve() == config.resolve():
+        raise typer.BadParameter("would overwrite the --config file: write a copy and review it", param_hint="--write")
+    console, errors = stdout_console(), stderr_console()
+    failed = False
+    try:
+        cfg = load_cell_config(config) if config is not None else None
+    except MonoguideError as error:
+        _fail(errors, f"config {config}", error, json_output)
+        raise typer.Exit(1) from error
+    if layout:
+        assert cfg is not None
+        report, failed = _layout(cfg, sigma_px, write, out, errors, json_output)
+    else:
+        report, failed = _fig5(cfg, standoff_mm, sigma_px, steps, out, errors)
+    if report is None:
+        raise typer.Exit(1)
     if record is not None:
         report["record"] = _record_layout(record)
-    if out is not None:
-        cv2.imwrite(str(out), _render_map(fig5, camera.width, camera.height, targets))
-        report["map_png"] = str(out)
+        if "error" in report["record"]:
+            failed = True
+            e = report["record"]["error"]
+            errors.print(f"record {escape(str(record))}: {e['code']}: {escape(e['message'])}")
     if json_output:
         typer.echo(json.dumps(report))
-        return
-    _print_report(console, report, fig5, sigma_px)
+    elif layout:
+        print_layout(console, report)
+    else:
+        print_fig5(console, report)
+    if failed:
+        raise typer.Exit(1)
 
 
-def _predict(camera, points_w, standoff_mm, targets, sigma_px) -> dict:
-    covariance = layout_covariance(camera, points_w, look_at_poses(points_w, camera, standoff_mm, targets), sigma_px)
-    return _sigmas(covariance)
+def _layout(cfg, sigma_px, write, out, errors, json_output) -> tuple[dict | None, bool]:
+    try:
+        cell = cell_layout(cfg, sigma_px)
+        planned = plan_layout(cell.request)
+    except MonoguideError as error:
+        _fail(errors, "layout", error, json_output)
+        return None, True
+    current = assess_layout(cell.request, cell.T_w0_si, cell.observed)
+    report = _layout_report(cfg, cell, planned, current)
+    failed = False
+    if write is not None:
+        note = "planned by `monoguide plan --layout`"
+        try:
+            write_config_with_layout(cfg, planned, write, note)
+            report["written"] = str(write)
+        except (OSError, MonoguideError) as error:
+            failed = True
+            errors.print(f"--write {escape(str(write))}: not written: {escape(str(error))}")
+    if out is not None:
+        picture = draw_layout(cell.request, planned, cell.T_w0_si, title=f"{cfg.name}: planned measuring poses")
+        failed |= not _write_png(out, picture, errors)
+        if not failed:
+            report["layout_png"] = str(out)
+    return report, failed
 
 
-def _sigmas(covariance: np.ndarray) -> dict:
-    return {
-        "sigma_rot_deg": round(math.degrees(math.sqrt(np.trace(covariance[:3, :3]))), 6),
-        "sigma_trans_mm": round(math.sqrt(np.trace(covariance[3:, 3:])), 5),
+def _layout_report(cfg, cell: CellLayout, planned: LayoutAssessment, current: LayoutAssessment) -> dict[str, Any]:
+    r = cell.request
+    names = planned_pose_names(cfg, len(planned.T_w0_si))
+    report: dict[str, Any] = {
+        "cell": cfg.name,
+        "config": str(cfg.path),
+        "sigma_px": r.sigma_px,
+        "repeatability_mm": r.repeatability_mm,
+        "repeatability_deg": r.repeatability_deg,
+        "grasp_point_w": r.grasp_point().tolist(),
+        "envelope": {
+            "translation_mm": list(r.envelope.translation_mm),
+            "rotation_deg": list(r.envelope.rotation_deg),
+            "centre_w": r.envelope.centre(r.points_w).tolist(),
+            "parts_checked": int(64 + 1 + r.interior_samples),
+        },
+        "constraints": {
+            "standoff_mm": list(r.constraints.standoff_mm),
+            "max_view_angle_deg": r.constraints.max_view_angle_deg,
+            "margin_px": r.constraints.margin_px,
+            "depth_of_field_mm": list(r.constraints.depth_of_field_mm),
+            "reach_radius_mm": None if r.constraints.reach is None else r.constraints.reach.radius_mm,
+        },
     }
+    report.update(_summary(planned))
+    report["poses"] = _poses(cfg, r, planned, names)
+    report["current"] = {**_summary(current), "poses": _poses(cfg, r, current, cell.names)}
+    return report
+
+
+def _summary(a: LayoutAssessment) -> dict[str, Any]:
+    out: dict[str, Any] = {
+        "margin_px_min": round(a.margin_px_min, 1) if a.in_front else None,
+        "in_front": a.in_front,
+        "depth_mm_min": round(a.depth_mm_min, 1),
+        "depth_mm_max": round(a.depth_mm_max, 1),
+        "degenerate": a.degenerate,
+    }
+    for suffix, s in (("", a.sigmas), ("_with_repeatability", a.sigmas_with_repeatability)):
+        for key, value in (s.as_dict() if s is not None else dict.fromkeys(
+                ("sigma_rot_deg", "sigma_trans_mm", "sigma_origin_mm"))).items():
+            out[key + suffix] = None if value is None else round(value, 6)
+    return out
+
+
+def _poses(cfg, request, a: LayoutAssessment, view_names) -> list[dict[str, Any]]:
+    point_names = request.names()
+    rows = []
+    for j, (view, point) in enumerate(a.observed):
+        T_cf_si = compose(cfg.reference.T_cf_w0, a.T_w0_si[view])
+        rows.append({
+            "name": view_names[view],
+            "hole": point_names[point],
+            "position_cf_mm": np.round(T_cf_si[:3, 3], 3).tolist(),
+            "optical_axis_cf": np.round(T_cf_si[:3, 2], 6).tolist(),
+            "T_cf_si": T_cf_si.tolist(),
+            "standoff_mm": round(float(a.standoff_mm[j]), 1),
+            "view_angle_deg": round(float(a.view_angle_deg[j]), 2),
+            "view_angle_max_deg": round(float(a.view_angle_max_deg[j]), 2),
+            "pixel": np.round(a.pixels[j], 1).tolist(),
+            "margin_px": round(float(a.margin_px[j]), 1) if math.isfinite(a.margin_px[j]) else None,
+            "depth_mm": np.round(a.depth_mm[j], 1).tolist(),
+        })
+    return rows
+
+
+def _fig5(cfg, standoff_mm, sigma_px, steps, out, errors) -> tuple[dict | None, bool]:
+    if cfg is not None:
+        camera, points = cfg.camera.intrinsics, cfg.part.points_w
+        cell = f"{cfg.name} ({cfg.path})"
+        sigma = sigma_px or (cfg.layout.sigma_px if cfg.layout is not None else 0.1)
+    else:
+        camera, points = PAPER_CAMERA, PAPER_ROOF_POINTS_W
+        cell = "the paper's roof (Table 1 holes, Table 2 camera); give --config CELL.toml for your cell"
+        sigma = sigma_px or 0.1
+    try:
+        fig5 = uncertainty_map(camera, points, standoff_mm, steps=steps)
+        report = fig5_report(cell, camera, points, standoff_mm, sigma, fig5)
+    except MonoguideError as error:
+        _fail(errors, "Fig. 5", error, False)
+        return None, True
+    failed = False
+    if out is not None:
+        picture = _render_map(fig5, camera.width, camera.height)
+        failed = not _write_png(out, picture, errors)
+        if not failed:
+            report["map_png"] = str(out)
+    return report, failed
 
 
 def _record_layout(path: Path) -> dict:
     try:
         parsed = parse_record(json.loads(path.read_text()))
-        return {"path": str(path), **_sigmas(predicted_covariance(parsed.problem, parsed.problem.T_s1_w0))}
-    except (OSError, json.JSONDecodeError) as error:
+        problem = parsed.problem
+        covariance = predicted_covariance(problem, problem.T_s1_w0)
+        sigmas = pose_sigmas(covariance, problem.T_s1_w0, problem.points_w.mean(axis=0))
+        return {"path": str(path), **{k: round(v, 6) for k, v in sigmas.as_dict().items()}}
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as error:
         return {"path": str(path), "error": {"code": "RECORD_INVALID", "message": f"{path}: {error}"}}
     except MonoguideError as error:
         return {"path": str(path), "error": error.as_dict()}
 
 
-def _print_report(console: Console, report: dict, fig5: UncertaintyMap, sigma_px: float) -> None:
-    table = Table(title=f"Fig. 5: σ of the part position (mm) for {sigma_px} px centre noise, every hole moved "
-                  "|du|, |dv| px outwards from the image centre")
-    table.add_column("|dv| \\ |du|", justify="right")
-    cols = range(0, len(fig5.offsets_u_px), max(1, len(fig5.offsets_u_px) // 6))
-    rows = range(0, len(fig5.offsets_v_px), max(1, len(fig5.offsets_v_px) // 6))
-    for iu in cols:
-        table.add_column(f"{fig5.offsets_u_px[iu]:.0f}", justify="right")
-    for iv in rows:
-        table.add_row(
-            f"{fig5.offsets_v_px[iv]:.0f}",
-            *[f"{sigma_px * fig5.sigma_trans_mm[iv, iu]:.3f}" for iu in cols],
-        )
-    console.print(table)
-    rec = report["recommended"]
-    console.print(
-        f"Recommended: each hole a quarter of the image from the edge, on the side away from the part's centre "
-        f"(Sec. 4): predicted σ {rec['sigma_rot_deg']:.4f}° / {rec['sigma_trans_mm']:.3f} mm at {sigma_px} px."
-    )
-    for i, (u, v) in enumerate(report["recommended_pixels"]):
-        console.print(f"  view {i + 1}: hole {i + 1} at pixel ({u:.0f}, {v:.0f})")
-    if "record" in report:
-        layout = report["record"]
-        if "error" in layout:
-            console.print(f"[red]{layout['path']}: {layout['error']['code']}[/red] {layout['error']['message']}")
-        else:
-            console.print(
-                f"Layout of {layout['path']}: predicted σ {layout['sigma_rot_deg']:.4f}° / "
-                f"{layout['sigma_trans_mm']:.3f} mm (its own sigma_px and view_sigma)"
-            )
-    if "map_png" in report:
-        console.print(f"Map written to {report['map_png']}")
+def _write_png(path: Path, picture: np.ndarray, errors) -> bool:
+    try:
+        ok = bool(cv2.imwrite(str(path), picture))
+    except cv2.error as error:
+        ok, reason = False, str(error).strip().splitlines()[-1]
+    else:
+        reason = "the directory does not exist or is not writable"
+    if not ok:
+        errors.print(f"--out {escape(str(path))}: not written: {escape(reason)}")
+    return ok
 
 
-def _render_map(fig5: UncertaintyMap, width: int, height: int, targets: np.ndarray) -> np.ndarray:
-    """The map as a false-colour picture of the image quadrant (centre at the top left), log scale, with
-    the recommended position marked; two image pixels per picture pixel."""
+def _fail(errors, what: str, error: MonoguideError, json_output: bool) -> None:
+    errors.print(f"{escape(what)}: {error.code} (PLC {error.plc_code}): {escape(error.message)}")
+    if json_output:
+        typer.echo(json.dumps({"status": "error", "error": {**error.as_dict(), "plc_code": error.plc_code}}))
+
+
+def _render_map(fig5, width: int, height: int) -> np.ndarray:
+    """The Fig. 5 map as a false-colour picture of the image quadrant (centre at the top left), log scale,
+    with the quarter-from-the-edge position marked; two image pixels per picture pixel."""
     scale = 2
     w, h = width // (2 * scale), height // (2 * scale)
     values = np.log(fig5.sigma_trans_mm)
     grid = cv2.resize(values.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
     norm = ((grid - grid.min()) / max(float(np.ptp(grid)), 1e-12) * 255).astype(np.uint8)
     picture = cv2.applyColorMap(255 - norm, cv2.COLORMAP_VIRIDIS)
-    quarter = (int(width / 4 / scale), int(height / 4 / scale))
-    cv2.circle(picture, quarter, 6, (255, 255, 255), 2)
+    cv2.circle(picture, (int(width / 4 / scale), int(height / 4 / scale)), 6, (255, 255, 255), 2)
     lo, hi = float(fig5.sigma_trans_mm.min()), float(fig5.sigma_trans_mm.max())
     lines = (
         "image quadrant: centre top left; colour: log sigma of the part position",
         f"per px of centre noise: {hi:.2f} mm (dark, near centre) .. {lo:.2f} mm (bright)",
-        "o: hole a quarter of the image from the edge (recommended)",
+        "o: hole a quarter of the image from the edge (the paper's recommendation)",
     )
     for k, text in enumerate(lines):
         y = h - 10 - 18 * (len(lines) - 1 - k)
         cv2.putText(picture, text, (8, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
     return picture
+

@@ -1,13 +1,21 @@
-"""`monoguide probe camera|tracker`: is the device there, who is it, does it deliver?
+"""`monoguide probe camera|tracker|robot`: is the device there, who is it, does it deliver?
 
 Connects to the device the cell config names (real or simulated, the command does not care), prints its
 identity, grabs a frame (camera, optionally saved with ``--out``) or measures a point (tracker), and exits
-with a clear message and a non-zero status when the device is absent or misbehaves.
+with a clear message and a non-zero status when the device is absent or misbehaves. The robot probe prints
+identity, modes and the actual flange pose; ``--goto K`` requests measuring pose K and waits until in
+position, ``--write-zero`` writes a zero offset and waits for its acknowledgement. Results go to
+standard output, one line each; error lines to standard error.
+
+A new device kind is one member of :class:`Device`, one ``_probe_<kind>(cfg, options, console)`` and
+its entry in :data:`PROBES`.
 """
 
 from __future__ import annotations
 
 import enum
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
 
@@ -17,10 +25,13 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
-from monoguide.daemon.assembly import build_camera, build_tracker, camera_settings
+from monoguide.daemon.assembly import build_camera, build_robot, build_tracker, camera_settings
 from monoguide.daemon.config import CellConfig, load_cell_config
+from monoguide.daemon.console import stderr_console, stdout_console
 from monoguide.drivers.errors import ConfigError
+from monoguide.drivers.robot import RobotStatus
 from monoguide.solver.errors import MonoguideError
+from monoguide.solver.frames import matrix_to_rotvec
 
 EXIT_DEVICE = 1
 EXIT_CONFIG = 2
@@ -30,6 +41,18 @@ OUT_SUFFIXES = (".png", ".tif", ".tiff", ".pgm", ".bmp")  # lossless: the frame 
 class Device(enum.StrEnum):
     camera = "camera"
     tracker = "tracker"
+    robot = "robot"
+
+
+@dataclass(frozen=True)
+class ProbeOptions:
+    """The command's options that some probe uses (each probe ignores the others)."""
+
+    out: Path | None = None
+    nest: str | None = None
+    state_file: Path | None = None
+    goto: int | None = None  # robot: measuring pose number (S1 is 1)
+    write_zero: bool = False  # robot: write a zero offset and wait for its acknowledgement
 
 
 def probe(
@@ -40,20 +63,20 @@ def probe(
     state_file: Annotated[
         Path | None, typer.Option("--state-file", help="sim-cell state file (simulated tracker)")
     ] = None,
+    goto: Annotated[
+        int | None, typer.Option("--goto", help="robot: request measuring pose K (S1 is 1), wait until in position")
+    ] = None,
+    write_zero: Annotated[
+        bool, typer.Option("--write-zero", help="robot: write a zero offset, wait for its acknowledgement")
+    ] = False,
 ) -> None:
-    """Connect to the camera or the laser tracker, print its identity, take one frame or point."""
-    # markup=False: messages quote config sections ("[camera].region") that rich would take for tags;
-    # soft_wrap: one line per result, whatever the terminal width, so scripts can read it
-    console = Console(highlight=False, markup=False, soft_wrap=True)
-    errors = Console(stderr=True, highlight=False, soft_wrap=True)
+    """Connect to the camera, the laser tracker or the robot, print its identity, take one frame, point or pose."""
+    console, errors = stdout_console(), stderr_console()
     try:
         if out is not None:
             _check_out(out)
         cfg = load_cell_config(config)
-        if device is Device.camera:
-            _probe_camera(cfg, out, console)
-        else:
-            _probe_tracker(cfg, nest, state_file, console)
+        PROBES[device](cfg, ProbeOptions(out, nest, state_file, goto, write_zero), console)
     except ConfigError as exc:
         errors.print(f"[red]config error {exc.code}[/red] (PLC {exc.plc_code}): {escape(exc.message)}")
         raise typer.Exit(EXIT_CONFIG) from exc
@@ -62,19 +85,20 @@ def probe(
         raise typer.Exit(EXIT_DEVICE) from exc
 
 
-def _probe_camera(cfg: CellConfig, out: Path | None, console: Console) -> None:
+def _probe_camera(cfg: CellConfig, options: ProbeOptions, console: Console) -> None:
+    out = options.out
     camera = build_camera(cfg)
     identity = camera.open()
     try:
-        console.print(f"camera: {identity.vendor} {identity.model}, serial {identity.serial}"
-                      + (f", user name {identity.user_name}" if identity.user_name else ""))
+        _say(console, f"camera: {identity.vendor} {identity.model}, serial {identity.serial}"
+             + (f", user name {identity.user_name}" if identity.user_name else ""))
         camera.configure(camera_settings(cfg))
         frame = camera.grab(cfg.camera.grab_timeout_s)
     finally:
         camera.close()
     image = frame.image
-    console.print(f"frame {frame.frame_number}: {image.shape[1]} x {image.shape[0]} px {frame.pixel_format}, "
-                  f"grey min {int(image.min())} mean {float(np.mean(image)):.1f} max {int(image.max())}")
+    _say(console, f"frame {frame.frame_number}: {image.shape[1]} x {image.shape[0]} px {frame.pixel_format}, "
+         f"grey min {int(image.min())} mean {float(np.mean(image)):.1f} max {int(image.max())}")
     if out is not None:
         try:
             written = cv2.imwrite(str(out), image)
@@ -82,7 +106,7 @@ def _probe_camera(cfg: CellConfig, out: Path | None, console: Console) -> None:
             raise ConfigError(f"--out {out}: cannot write the image: {exc}") from exc
         if not written:
             raise ConfigError(f"--out {out}: cannot write the image there")
-        console.print(f"saved {out}")
+        _say(console, f"saved {out}")
 
 
 def _check_out(out: Path) -> None:
@@ -93,15 +117,62 @@ def _check_out(out: Path) -> None:
         raise ConfigError(f"--out {out}: folder {out.parent} does not exist")
 
 
-def _probe_tracker(cfg: CellConfig, nest: str | None, state_file: Path | None, console: Console) -> None:
-    tracker = build_tracker(cfg, state_file)
+def _probe_tracker(cfg: CellConfig, options: ProbeOptions, console: Console) -> None:
+    nest = options.nest
+    tracker = build_tracker(cfg, options.state_file)
     identity = tracker.open()
     try:
-        console.print(f"tracker: {identity.vendor} {identity.model}, serial {identity.serial}, "
-                      f"firmware {identity.firmware}")
+        _say(console, f"tracker: {identity.vendor} {identity.model}, serial {identity.serial}, "
+             f"firmware {identity.firmware}")
         m = tracker.measure_point(nest)
     finally:
         tracker.close()
     x, y, z = (float(v) for v in m.point_mm)
-    console.print(f"point{' ' + nest if nest else ''}: x {x:.4f} y {y:.4f} z {z:.4f} mm, "
-                  f"rms {m.rms_mm:.4f} mm, measurement {m.measurement_number}")
+    _say(console, f"point{' ' + nest if nest else ''}: x {x:.4f} y {y:.4f} z {z:.4f} mm, "
+         f"rms {m.rms_mm:.4f} mm, measurement {m.measurement_number}")
+
+
+def _probe_robot(cfg: CellConfig, options: ProbeOptions, console: Console) -> None:
+    n = len(cfg.measuring_poses)
+    if options.goto is not None and not 1 <= options.goto <= n:
+        raise ConfigError(f"--goto {options.goto}: the cell has measuring poses 1..{n} "
+                          f"({', '.join(p.name for p in cfg.measuring_poses)})")
+    robot = build_robot(cfg, options.state_file)
+    identity = robot.open()
+    try:
+        _say(console, f"robot: {identity.vendor} {identity.model}, software {identity.software}, at "
+             f"{identity.address}")
+        _say_robot_status(console, robot.status(), cfg)
+        if options.goto is not None:
+            i = options.goto - 1
+            status = robot.move_to_measuring_pose(i)
+            _say(console, f"in position at {cfg.measuring_poses[i].name} (request {status.ack_sequence})")
+            _say_robot_status(console, status, cfg)
+        if options.write_zero:
+            sequence = robot.write_base_offset(np.eye(4))
+            _say(console, f"zero offset written, acknowledged as request {sequence}")
+    finally:
+        robot.close()
+
+
+def _say_robot_status(console: Console, status: RobotStatus, cfg: CellConfig) -> None:
+    at = cfg.measuring_poses[status.in_position - 1].name if 1 <= status.in_position <= len(cfg.measuring_poses) \
+        else "no measuring pose"
+    _say(console, f"mode {status.mode}, safety {status.safety}, program "
+         f"{'running' if status.program_running else 'NOT running'}, {'ready' if status.ready else 'NOT READY'}, "
+         f"at {at}")
+    x, y, z = (float(v) for v in status.T_b_f[:3, 3])
+    rx, ry, rz = (float(v) for v in np.degrees(matrix_to_rotvec(status.T_b_f[:3, :3])))
+    _say(console, f"flange T_b_f: x {x:.3f} y {y:.3f} z {z:.3f} mm, rotation vector {rx:.4f} {ry:.4f} {rz:.4f} deg")
+
+
+def _say(console: Console, line: str) -> None:
+    """One result line, printed as is (device names and paths may hold ``[...]`` that is not markup)."""
+    console.print(line, markup=False)
+
+
+PROBES: dict[Device, Callable[[CellConfig, ProbeOptions, Console], None]] = {
+    Device.camera: _probe_camera,
+    Device.tracker: _probe_tracker,
+    Device.robot: _probe_robot,
+}

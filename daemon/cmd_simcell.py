@@ -1,12 +1,19 @@
 """`monoguide sim-cell`: run the simulated devices that are their own processes, until stopped.
 
-Today that is the laser tracker behind a pseudo-terminal; the robot controller and the PLC join when their
-issues land. Where each device listens goes to stdout and to a JSON state file that ``monoguide probe``
-(and ``run``) read. Ctrl-C or SIGTERM stops everything; no child process is left behind.
+Today that is the laser tracker behind a pseudo-terminal and, when ``[robot] backend`` is ``sim-ur`` or
+``sim-kuka``, the simulated robot controller on ``[robot] host:port`` (its spec and truth files lie beside
+the state file); the PLC joins when its issue lands. Where each device listens goes to stdout and to a
+JSON state file that ``monoguide probe`` (and ``run``) read. Ctrl-C or SIGTERM stops everything; no child
+process is left behind.
+
+One sim-cell per state file: the claim is an exclusive ``flock`` on ``<state file>.lock``, held for the
+process's lifetime (the kernel releases it when the process ends, however it ends), so two sim-cells
+started together cannot both run, and only the owner ever writes or deletes the state file.
 """
 
 from __future__ import annotations
 
+import fcntl
 import logging
 import os
 import select
@@ -15,13 +22,13 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
-from monoguide.daemon.assembly import build_sim_cell, read_sim_state, sim_state_file, write_sim_state
-from monoguide.daemon.config import load_cell_config
-from monoguide.drivers.errors import ConfigError, DeviceDisconnected, DeviceError, DeviceNotFound, DeviceTimeout
+from monoguide.daemon.assembly import build_sim_cell, sim_state_file, write_sim_state
+from monoguide.daemon.config import CellConfig, load_cell_config
+from monoguide.drivers.errors import ConfigError, DeviceBusy, DeviceDisconnected, DeviceTimeout
 from monoguide.solver.errors import MonoguideError
 
 log = logging.getLogger(__name__)
@@ -46,8 +53,9 @@ def sim_cell(
 
     previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     children: list[subprocess.Popen[str]] = []
-    state_path: Path | None = None
+    claim: _StateFileClaim | None = None
     targets_path: Path | None = None
+    robot_files: tuple[Path, ...] = ()
     try:
         cfg = load_cell_config(config)
         if cfg.tracker is None:
@@ -55,7 +63,8 @@ def sim_cell(
         if cfg.tracker.backend != "sim":
             raise ConfigError(f"{cfg.path}: [tracker].backend = {cfg.tracker.backend!r}: sim-cell simulates only "
                               f"'sim' devices")
-        state_path = _claim_state_file(state_file or sim_state_file(cfg))
+        claim = _StateFileClaim.take(state_file or sim_state_file(cfg))
+        state_path = claim.path
         cell = build_sim_cell(cfg)
         targets_path = cell.write_tracker_targets(state_path.with_name(state_path.stem + "-tracker-targets.json"))
         tracker = _start(
@@ -69,8 +78,16 @@ def sim_cell(
             "config": str(Path(config).resolve()),
             "tracker": {"port": tracker.address, "pid": tracker.process.pid, "targets": str(targets_path)},
         }
+        robot_files = _robot_files(cfg, state_path)
+        if robot_files:
+            robot = _start_robot(cfg, cell, *robot_files)
+            children.append(robot.process)
+            state["robot"] = robot.state
         write_sim_state(state_path, state)
         typer.echo(f"tracker listening on {tracker.address} (pid {tracker.process.pid})")
+        if "robot" in state:
+            typer.echo(f"robot ({state['robot']['backend']}) listening on {state['robot']['host']}:"
+                       f"{state['robot']['port']} (pid {state['robot']['pid']})")
         typer.echo(f"state file {state_path}")
         typer.echo("running; Ctrl-C or SIGTERM stops the simulated cell", err=True)
         sys.stdout.flush()
@@ -81,6 +98,10 @@ def sim_cell(
                                              f"{child.returncode}")
             time.sleep(0.1)
         typer.echo(f"stopping ({signal.Signals(stop['signal']).name})", err=True)
+    except OSError as exc:  # a state or targets file that cannot be written where the config puts it
+        error = ConfigError(f"cannot write {exc.filename or 'a sim-cell file'}: {exc.strerror or exc}")
+        typer.echo(f"config error {error.code} (PLC {error.plc_code}): {error.message}", err=True)
+        raise typer.Exit(EXIT_CONFIG) from exc
     except ConfigError as exc:
         typer.echo(f"config error {exc.code} (PLC {exc.plc_code}): {exc.message}", err=True)
         raise typer.Exit(EXIT_CONFIG) from exc
@@ -89,9 +110,8 @@ def sim_cell(
         raise typer.Exit(EXIT_DEVICE) from exc
     finally:
         _stop_all(children)
-        for path in (state_path, targets_path):
-            if path is not None:
-                path.unlink(missing_ok=True)
+        if claim is not None:  # only the owner deletes: a refused sim-cell leaves the running one's files alone
+            claim.release(targets_path, *robot_files)
         for s, handler in previous.items():
             signal.signal(s, handler)
 
@@ -99,19 +119,94 @@ def sim_cell(
 # --- private -----------------------------------------------------------------------------------
 
 
-def _claim_state_file(path: Path) -> Path:
-    """``path`` if no live sim-cell owns it (a stale file is taken over); else :class:`DeviceError`, so a
-    second sim-cell never overwrites, and on exit deletes, the state of one that is running."""
-    if path.exists():
+class _StateFileClaim:
+    """This process's claim on a state file: an exclusive ``flock`` on ``<path>.lock`` holding our pid."""
+
+    def __init__(self, path: Path, lock_path: Path, fd: int) -> None:
+        self.path = path
+        self.lock_path = lock_path
+        self._fd = fd
+
+    @classmethod
+    def take(cls, path: Path) -> _StateFileClaim:
+        """Claim ``path`` atomically; :class:`DeviceBusy` naming it when a running sim-cell holds it,
+        :class:`ConfigError` when it cannot be a state file (a directory, an unwritable place). A state file
+        left by a dead sim-cell is taken over."""
+        lock_path = path.with_name(path.name + ".lock")
+        for candidate, what in ((path, "state file"), (lock_path, "state file's lock")):
+            if candidate.is_dir():
+                raise ConfigError(f"{what} {candidate} is a directory; give --state-file a file path")
         try:
-            state = read_sim_state(path)
-        except DeviceNotFound:
-            pass  # stale (its sim-cell died) or not a state file we can read: ours to replace
-        else:
-            raise DeviceError(f"a simulated cell is already running (pid {state.get('pid')}) with state file "
-                              f"{path}; stop it or give another --state-file")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    return path
+            path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise ConfigError(f"state file {path}: cannot create its folder: {exc}") from exc
+        for _ in range(5):
+            try:
+                fd = os.open(lock_path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+            except OSError as exc:
+                raise ConfigError(f"state file {path}: cannot open its lock {lock_path}: {exc}") from exc
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                owner = os.pread(fd, 32, 0).decode("ascii", "replace").strip() or "?"
+                os.close(fd)
+                raise DeviceBusy(f"a simulated cell is already running (pid {owner}) with state file {path}; stop "
+                                 f"it or give another --state-file") from None
+            if _same_file(fd, lock_path):  # not unlinked by its last owner between our open and our lock
+                os.ftruncate(fd, 0)
+                os.pwrite(fd, f"{os.getpid()}\n".encode("ascii"), 0)
+                return cls(path, lock_path, fd)
+            os.close(fd)
+        raise DeviceBusy(f"state file {path}: its lock {lock_path} keeps changing hands; try again")
+
+    def release(self, *more: Path | None) -> None:
+        """Delete the state file (and ``more`` files of this sim-cell), then the lock, while still holding it."""
+        for path in (self.path, *more, self.lock_path):
+            if path is not None:
+                try:
+                    path.unlink(missing_ok=True)
+                except OSError as exc:
+                    log.warning("cannot remove %s: %s", path, exc)
+        os.close(self._fd)
+
+
+def _same_file(fd: int, path: Path) -> bool:
+    try:
+        return os.fstat(fd).st_ino == os.stat(path).st_ino
+    except FileNotFoundError:
+        return False
+
+
+def _robot_files(cfg: CellConfig, state_path: Path) -> tuple[Path, ...]:
+    """The simulated robot's spec and truth files beside the state file; none when the robot is not simulated."""
+    if cfg.robot is None or not cfg.robot.simulated:
+        return ()
+    return (state_path.with_name(state_path.stem + "-robot.json"),
+            state_path.with_name(state_path.stem + "-robot-truth.json"))
+
+
+class _StartedRobot:
+    def __init__(self, process: subprocess.Popen[str], state: dict[str, object]) -> None:
+        self.process = process
+        self.state = state
+
+
+def _start_robot(cfg: CellConfig, cell: Any, spec_path: Path, truth_path: Path) -> _StartedRobot:
+    """Start the simulated controller ``[robot] backend`` names, on ``[robot] host:port``; ``cell`` is the
+    :class:`SimCell` (not imported here: runtime modules never import the simulator)."""
+    r = cfg.robot
+    assert r is not None
+    cell.write_robot_spec(spec_path)
+    started = _start(
+        [sys.executable, "-m", f"monoguide.drivers.sim.{r.make}_controller", "--spec", str(spec_path), "--truth",
+         str(truth_path), "--host", r.host, "--port", str(r.port), "--move-time", str(r.sim_move_time_s),
+         "--seed", str(cell.spec.seed + 3)],
+        "robot",
+    )
+    host, _, port = started.address.rpartition(":")
+    return _StartedRobot(started.process, {"backend": r.backend, "host": host, "port": int(port),
+                                           "pid": started.process.pid, "spec": str(spec_path),
+                                           "truth": str(truth_path)})
 
 
 class _Started:

@@ -1,34 +1,61 @@
 """The cell configuration: one TOML file, typed and validated on load (:func:`load_cell_config`).
 
 Sections: ``[cell]``, ``[camera]`` (+ ``[camera.intrinsics]``), ``[part]``, ``[reference]``,
-``[[measuring_poses]]``, ``[tracker]``, ``[sim]``. A bad file raises :class:`ConfigError` naming the key,
-the value and why. Matrices are 4x4 row-major lists, lengths in mm, angles in degrees. Relative paths
-are relative to the config file. Later issues add their sections (robot, PLC) here; a section this
-schema does not know yet is kept raw in :attr:`CellConfig.extra_sections` and logged.
+``[[measuring_poses]]``, and the optional ``[tracker]``, ``[sim]``. Matrices are 4x4 row-major lists,
+lengths in mm, angles in degrees. Relative paths are relative to the config file. The keys are
+documented in ``docs/cell-config.md``.
+
+Strict: a bad file raises a :class:`ConfigError` naming the key, the value and why; a required key that
+is missing is :class:`ConfigMissingKey` (never a zero), an unknown key or section is
+:class:`ConfigUnknownKey` / :class:`ConfigUnknownSection` with the closest known name.
+
+A later issue adds its section in three steps: a frozen dataclass, a reader ``_name(t: ConfigTable)``
+below, and an entry in :data:`OPTIONAL_SECTIONS` together with a ``CellConfig`` field of the same name
+(``None`` when the file has no such section).
 """
 
 from __future__ import annotations
 
-import logging
-import math
 import os
 import tomllib
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from monoguide.daemon.config_reader import (
+    MATRIX_TOL,
+    ConfigMissingKey,
+    ConfigTable,
+    ConfigUnknownKey,
+    ConfigUnknownSection,
+)
 from monoguide.drivers.errors import ConfigError
 from monoguide.solver.camera import CameraModel
 from monoguide.solver.errors import RecordError
-from monoguide.solver.frames import compose, orthonormalize
+from monoguide.solver.frames import compose
+from monoguide.solver.planning import DeviationEnvelope, LayoutConstraints
 
-log = logging.getLogger(__name__)
+__all__ = [
+    "MATRIX_TOL",
+    "OPTIONAL_SECTIONS",
+    "REQUIRED_SECTIONS",
+    "CellConfig",
+    "ConfigError",
+    "ConfigMissingKey",
+    "ConfigUnknownKey",
+    "ConfigUnknownSection",
+    "default_sim_state_file",
+    "load_cell_config",
+]
 
-MATRIX_TOL = 2e-3  # printed calibration matrices are rounded to 4 decimals; re-orthonormalised on load
 CAMERA_BACKENDS = ("genicam", "sim")
 TRACKER_BACKENDS = ("serial", "sim")
+ROBOT_BACKENDS = ("ur", "kuka", "sim-ur", "sim-kuka")
+ROBOT_DEFAULT_PORTS = {"ur": 30004, "kuka": 54600}  # RTDE (fixed); the EKI channel's <PORT>
+INTRINSICS_KEYS = tuple(f.name for f in fields(CameraModel))  # width, height, fx, ..., p2: all required
 
 
 @dataclass(frozen=True)
@@ -51,6 +78,8 @@ class PartConfig:
     points_w: np.ndarray  # (n, 3) featured hole centres, mm
     hole_radius_mm: float
     point_names: tuple[str, ...]
+    grasp_point_w: np.ndarray | None = None  # (3,) where the robot grips, mm; None: the holes' centroid
+    normals_w: np.ndarray | None = None  # (n, 3) surface normal at each hole; None: the part's z axis
 
 
 @dataclass(frozen=True)
@@ -76,6 +105,32 @@ class TrackerConfig:
 
 
 @dataclass(frozen=True)
+class RobotConfig:
+    """``[robot]``: which controller, where, and how long to wait for it (docs/robot-interface.md)."""
+
+    backend: str  # "ur" | "kuka" | "sim-ur" | "sim-kuka"
+    host: str = "127.0.0.1"  # the controller; sim-*: where the simulated controller listens
+    port: int = 30004
+    connect_timeout_s: float = 3.0
+    move_timeout_s: float = 30.0  # request measuring pose -> in position
+    ack_timeout_s: float = 2.0  # offset written -> acknowledged
+    stale_timeout_s: float = 1.0  # no new state from the controller for this long: it has stalled
+    rtde_frequency_hz: float = 125.0  # UR: the state recipe's frequency
+    pose_tolerance_mm: float = 1.0  # in position, yet this far from the taught flange pose: refused
+    pose_tolerance_deg: float = 0.1
+    sim_move_time_s: float = 0.5  # sim-*: seconds per move to a measuring pose
+
+    @property
+    def make(self) -> str:
+        """``"ur"`` or ``"kuka"``: the protocol, whether the controller is real or simulated."""
+        return self.backend.removeprefix("sim-")
+
+    @property
+    def simulated(self) -> bool:
+        return self.backend.startswith("sim-")
+
+
+@dataclass(frozen=True)
 class SimConfig:
     seed: int = 0
     state_file: Path | None = None
@@ -90,6 +145,20 @@ class SimConfig:
     benchmarks: dict[str, np.ndarray] = field(default_factory=dict)  # SMR nests in the cell frame
     tool_smr_f: np.ndarray | None = None  # SMR on the flange tool, in the flange frame
     targets: tuple[CalibrationTarget, ...] = ()
+    focus_distance_mm: float | None = None  # where the simulated lens is sharp; None: no defocus
+    aperture_mm: float = 0.0  # the simulated lens's entrance pupil (focal length / f-number); 0: no defocus
+
+
+@dataclass(frozen=True)
+class LayoutConfig:
+    """``[layout]``: what ``monoguide plan --layout`` plans the measuring poses for (docs/planning.md)."""
+
+    constraints: LayoutConstraints = field(default_factory=LayoutConstraints)
+    envelope: DeviationEnvelope = field(default_factory=DeviationEnvelope)
+    sigma_px: float = 0.1
+    repeatability_mm: float = 0.05
+    repeatability_deg: float = 0.01
+    reach_radius_mm: float | None = None  # flange within this distance of the robot base ([reference] T_cf_b)
 
 
 @dataclass(frozen=True)
@@ -107,9 +176,11 @@ class CellConfig:
     part: PartConfig
     reference: ReferenceConfig
     measuring_poses: tuple[MeasuringPose, ...]
+    # optional sections (see OPTIONAL_SECTIONS): None when the file has no such section
     tracker: TrackerConfig | None = None
     sim: SimConfig | None = None
-    extra_sections: dict[str, Any] = field(default_factory=dict)
+    layout: LayoutConfig | None = None
+    robot: RobotConfig | None = None
 
 
 def load_cell_config(path: str | os.PathLike[str]) -> CellConfig:
@@ -123,25 +194,17 @@ def load_cell_config(path: str | os.PathLike[str]) -> CellConfig:
         raise ConfigError(f"{path}: cannot read: {exc}") from exc
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML: {exc}") from exc
-    root = _Table(raw, str(path), path.parent)
-    known = ("cell", "camera", "part", "reference", "measuring_poses", "tracker", "sim")
-    extra = {k: v for k, v in raw.items() if k not in known}
-    for key in extra:
-        log.warning("%s: section [%s] is not part of this schema yet; kept unread", path, key)
-    cell = root.table("cell")
-    name = cell.text("name")
-    cell.done()
+    root = ConfigTable(raw, path)
+    root.reject_unknown((*REQUIRED_SECTIONS, *OPTIONAL_SECTIONS))  # first: a misspelt section is not "missing"
+    name = _cell(root.table("cell"))
     camera = _camera(root.table("camera"))
     part = _part(root.table("part"))
     reference = _reference(root.table("reference"))
-    poses = _measuring_poses(root, reference, camera, len(part.points_w))
-    tracker = _tracker(root.table("tracker")) if "tracker" in raw else None
-    sim = _sim(root.table("sim")) if "sim" in raw else None
-    if camera.backend == "sim" and sim is None:
-        raise ConfigError(f"{path}: [camera] backend = 'sim' needs a [sim] section")
-    if tracker is not None and tracker.backend == "sim" and sim is None:
-        raise ConfigError(f"{path}: [tracker] backend = 'sim' needs a [sim] section")
-    return CellConfig(path, name, camera, part, reference, poses, tracker, sim, extra)
+    poses = _measuring_poses(root.tables("measuring_poses", required=True), reference, camera, len(part.points_w))
+    optional = {key: read(root.table(key)) if root.has(key) else None for key, read in OPTIONAL_SECTIONS.items()}
+    config = CellConfig(path, name, camera, part, reference, poses, **optional)
+    _check_backends(config)
+    return config
 
 
 def default_sim_state_file() -> Path:
@@ -153,15 +216,24 @@ def default_sim_state_file() -> Path:
 # --- sections ----------------------------------------------------------------------------------
 
 
-def _camera(t: _Table) -> CameraConfig:
+def _cell(t: ConfigTable) -> str:
+    name = t.text("name")
+    t.done()
+    return name
+
+
+def _camera(t: ConfigTable) -> CameraConfig:
     backend = t.choice("backend", CAMERA_BACKENDS)
-    intr = t.table("intrinsics")
-    try:
-        model = CameraModel.from_dict(dict(intr.raw), where=intr.where)
-    except RecordError as exc:
-        raise ConfigError(str(exc)) from exc
-    intr.raw.clear()
+    model = _intrinsics(t.table("intrinsics"))
+    in_genicam_wheel = str(t.raw.get("cti", "")).startswith("genicam:")
     cti = t.path("cti", None)
+    if in_genicam_wheel:  # "genicam:NAME": a producer the genicam wheel ships, wherever that is installed
+        from importlib.util import find_spec
+
+        package = find_spec("genicam")
+        if package is None or package.origin is None:
+            raise ConfigError(f"{t.where}.cti: the genicam package is not installed")
+        cti = Path(package.origin).parent / cti.name.removeprefix("genicam:")
     if backend == "genicam" and cti is None:
         raise ConfigError(f"{t.where}.cti: backend 'genicam' needs the GenTL producer (.cti) path")
     region = t.ints("region", 4, None)
@@ -184,30 +256,41 @@ def _camera(t: _Table) -> CameraConfig:
     return out
 
 
-def _part(t: _Table) -> PartConfig:
+def _intrinsics(t: ConfigTable) -> CameraModel:
+    """Every coefficient is required: a camera calibrated without distortion says ``k1 = 0.0``."""
+    values = {key: t.integer(key, minimum=1) if key in ("width", "height") else t.number(key)
+              for key in INTRINSICS_KEYS}
+    t.done()
+    try:
+        return CameraModel.from_dict(values, where=t.where)
+    except RecordError as exc:
+        raise ConfigError(exc.message) from exc
+
+
+def _part(t: ConfigTable) -> PartConfig:
     points = t.points("points_w")
     names = t.texts("point_names", tuple(f"P{i + 1}" for i in range(len(points))))
     if len(names) != len(points):
         raise ConfigError(f"{t.where}.point_names: {len(names)} names for {len(points)} points_w")
-    out = PartConfig(points, t.number("hole_radius_mm", positive=True), names)
+    normals = t.points("normals_w") if t.has("normals_w") else None
+    if normals is not None and (len(normals) != len(points) or np.any(np.linalg.norm(normals, axis=1) < 1e-9)):
+        raise ConfigError(f"{t.where}.normals_w: expected one non-zero normal per point of points_w ({len(points)})")
+    out = PartConfig(points, t.number("hole_radius_mm", positive=True), names, t.vector("grasp_point_w", 3, None),
+                     normals)
     t.done()
     return out
 
 
-def _reference(t: _Table) -> ReferenceConfig:
+def _reference(t: ConfigTable) -> ReferenceConfig:
     out = ReferenceConfig(t.matrix("T_cf_w0"), t.matrix("T_cf_b", None))
     t.done()
     return out
 
 
-def _measuring_poses(root: _Table, ref: ReferenceConfig, cam: CameraConfig, n_points: int) -> tuple:
-    entries = root.raw.pop("measuring_poses", None)
-    where = f"{root.where}: [[measuring_poses]]"
-    if not isinstance(entries, list) or not entries:
-        raise ConfigError(f"{where}: at least one measuring pose is needed, got {entries!r}")
+def _measuring_poses(entries: list[ConfigTable], ref: ReferenceConfig, cam: CameraConfig,
+                     n_points: int) -> tuple[MeasuringPose, ...]:
     poses = []
-    for i, entry in enumerate(entries):
-        t = _Table(entry, f"{root.where}: [[measuring_poses]] #{i + 1}", root.base, nested=True)
+    for i, t in enumerate(entries):
         name = t.text("name", f"S{i + 1}")
         points = t.ints("points", None, tuple(range(n_points)))
         if bad := [p for p in points if not 0 <= p < n_points]:
@@ -222,7 +305,7 @@ def _measuring_poses(root: _Table, ref: ReferenceConfig, cam: CameraConfig, n_po
     return tuple(poses)
 
 
-def _tracker(t: _Table) -> TrackerConfig:
+def _tracker(t: ConfigTable) -> TrackerConfig:
     backend = t.choice("backend", TRACKER_BACKENDS)
     port = t.text("port", None)
     if backend == "serial" and not port:
@@ -233,13 +316,12 @@ def _tracker(t: _Table) -> TrackerConfig:
     return out
 
 
-def _sim(t: _Table) -> SimConfig:
-    dev = t.table("deviation") if "deviation" in t.raw else _Table({}, f"{t.where}.deviation", t.base)
-    bench = t.table("benchmarks") if "benchmarks" in t.raw else _Table({}, f"{t.where}.benchmarks", t.base)
-    benchmarks = {k: bench.vector(k, 3) for k in list(bench.raw)}
+def _sim(t: ConfigTable) -> SimConfig:
+    dev = t.optional_table("deviation")
+    bench = t.optional_table("benchmarks")
+    benchmarks = {k: bench.vector(k, 3) for k in list(bench.raw)}  # named by the cell: every key is a nest
     targets = []
-    for i, entry in enumerate(t.raw.pop("targets", [])):
-        tt = _Table(entry, f"{t.where}.targets #{i + 1}", t.base, nested=True)
+    for tt in t.tables("targets"):
         targets.append(CalibrationTarget(tt.text("name"), tt.matrix("T_cf_t"), tt.points("points_t")))
         tt.done()
     out = SimConfig(
@@ -256,142 +338,96 @@ def _sim(t: _Table) -> SimConfig:
         benchmarks=benchmarks,
         tool_smr_f=t.vector("tool_smr_f", 3, None),
         targets=tuple(targets),
+        focus_distance_mm=t.number("focus_distance_mm", None, positive=True),
+        aperture_mm=t.number("aperture_mm", 0.0, nonnegative=True),
     )
+    if out.aperture_mm > 0 and out.focus_distance_mm is None:
+        raise ConfigError(f"{t.where}.aperture_mm = {out.aperture_mm}: a defocused lens needs focus_distance_mm")
     dev.done()
     t.done()
     return out
 
 
-# --- private: typed access that names the key ---------------------------------------------------
+def _layout(t: ConfigTable) -> LayoutConfig:
+    default, envelope = LayoutConstraints(), DeviationEnvelope()
+    standoff = tuple(t.vector("standoff_mm", 2, default.standoff_mm))
+    depth = tuple(t.vector("depth_of_field_mm", 2, default.depth_of_field_mm))
+    for key, (low, high) in (("standoff_mm", standoff), ("depth_of_field_mm", depth)):
+        if not 0 < low <= high:
+            raise ConfigError(f"{t.where}.{key} = {[float(low), float(high)]}: expected [min, max] with "
+                              "0 < min <= max (mm)")
+    angle = t.number("max_view_angle_deg", default.max_view_angle_deg, nonnegative=True)
+    if angle >= 90.0:
+        raise ConfigError(f"{t.where}.max_view_angle_deg = {angle}: must be below 90")
+    translation = tuple(float(v) for v in t.vector("envelope_translation_mm", 3, envelope.translation_mm))
+    rotation = tuple(float(v) for v in t.vector("envelope_rotation_deg", 3, envelope.rotation_deg))
+    if min(translation) < 0 or min(rotation) < 0 or max(rotation) >= 45.0:
+        raise ConfigError(f"{t.where}: envelope_translation_mm = {list(translation)}, envelope_rotation_deg = "
+                          f"{list(rotation)}: expected +- ranges >= 0 (rotations below 45)")
+    centre = t.vector("envelope_centre_w", 3, None)
+    out = LayoutConfig(
+        constraints=LayoutConstraints(
+            standoff_mm=(float(standoff[0]), float(standoff[1])),
+            max_view_angle_deg=angle,
+            margin_px=t.number("margin_px", default.margin_px, nonnegative=True),
+            depth_of_field_mm=(float(depth[0]), float(depth[1])),
+            max_view_angle_envelope_deg=t.number("max_view_angle_envelope_deg", None, positive=True),
+        ),
+        envelope=DeviationEnvelope(translation, rotation, None if centre is None else tuple(float(v) for v in centre)),
+        sigma_px=t.number("sigma_px", 0.1, positive=True),
+        repeatability_mm=t.number("repeatability_mm", 0.05, nonnegative=True),
+        repeatability_deg=t.number("repeatability_deg", 0.01, nonnegative=True),
+        reach_radius_mm=t.number("reach_radius_mm", None, positive=True),
+    )
+    t.done()
+    return out
 
-_MISSING = object()
+
+def _robot(t: ConfigTable) -> RobotConfig:
+    backend = t.choice("backend", ROBOT_BACKENDS)
+    make = backend.removeprefix("sim-")
+    port = t.integer("port", ROBOT_DEFAULT_PORTS[make], minimum=1)
+    if make == "ur" and port != ROBOT_DEFAULT_PORTS["ur"]:
+        raise ConfigError(f"{t.where}.port = {port}: a UR controller serves RTDE on 30004 only (ur_rtde cannot "
+                          f"use another port)")
+    if port > 65535:
+        raise ConfigError(f"{t.where}.port = {port}: not a TCP port (1..65535)")
+    out = RobotConfig(
+        backend=backend,
+        host=t.text("host", "127.0.0.1"),
+        port=port,
+        connect_timeout_s=t.number("connect_timeout_s", 3.0, positive=True),
+        move_timeout_s=t.number("move_timeout_s", 30.0, positive=True),
+        ack_timeout_s=t.number("ack_timeout_s", 2.0, positive=True),
+        stale_timeout_s=t.number("stale_timeout_s", 1.0, positive=True),
+        rtde_frequency_hz=t.number("rtde_frequency_hz", 125.0, positive=True),
+        pose_tolerance_mm=t.number("pose_tolerance_mm", 1.0, positive=True),
+        pose_tolerance_deg=t.number("pose_tolerance_deg", 0.1, positive=True),
+        sim_move_time_s=t.number("sim_move_time_s", 0.5, nonnegative=True),
+    )
+    if out.rtde_frequency_hz > 500.0:
+        raise ConfigError(f"{t.where}.rtde_frequency_hz = {out.rtde_frequency_hz:g}: a UR controller sends at "
+                          f"most 500 Hz")
+    t.done()
+    return out
 
 
-class _Table:
-    """One TOML table being read; every getter pops its key, :meth:`done` rejects what is left."""
+def _check_backends(config: CellConfig) -> None:
+    """Simulated back-ends need the ``[sim]`` section they are built from."""
+    if config.camera.backend == "sim" and config.sim is None:
+        raise ConfigError(f"{config.path}: [camera].backend = 'sim' needs a [sim] section")
+    if config.tracker is not None and config.tracker.backend == "sim" and config.sim is None:
+        raise ConfigError(f"{config.path}: [tracker].backend = 'sim' needs a [sim] section")
+    if config.robot is not None and config.robot.simulated and config.sim is None:
+        raise ConfigError(f"{config.path}: [robot].backend = {config.robot.backend!r} needs a [sim] section")
 
-    def __init__(self, raw: Any, where: str, base: Path, nested: bool = False) -> None:
-        if not isinstance(raw, dict):
-            raise ConfigError(f"{where}: expected a table, got {raw!r}")
-        self.raw = dict(raw)
-        self.where = where
-        self.base = base
-        self.nested = nested
 
-    def table(self, key: str) -> _Table:
-        where = f"{self.where}.{key}" if self.nested else f"{self.where}: [{key}]"
-        return _Table(self._pop(key, _MISSING), where, self.base, nested=True)
+REQUIRED_SECTIONS = ("cell", "camera", "part", "reference", "measuring_poses")
 
-    def done(self) -> None:
-        if self.raw:
-            raise ConfigError(f"{self.where}: unknown key(s) {sorted(self.raw)}")
-
-    def text(self, key: str, default: Any = _MISSING) -> Any:
-        value = self._pop(key, default)
-        if value is default and default is not _MISSING:
-            return value
-        if not isinstance(value, str):
-            raise ConfigError(f"{self.where}.{key} = {value!r}: expected a string")
-        return value
-
-    def texts(self, key: str, default: Any = _MISSING) -> Any:
-        value = self._pop(key, default)
-        if value is default and default is not _MISSING:
-            return value
-        if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
-            raise ConfigError(f"{self.where}.{key} = {value!r}: expected a list of strings")
-        return tuple(value)
-
-    def choice(self, key: str, options: tuple[str, ...]) -> str:
-        value = self.text(key)
-        if value not in options:
-            raise ConfigError(f"{self.where}.{key} = {value!r}: must be one of {list(options)}")
-        return value
-
-    def path(self, key: str, default: Any = _MISSING) -> Any:
-        value = self.text(key, default)
-        if value is default and default is not _MISSING:
-            return value
-        p = Path(os.path.expandvars(os.path.expanduser(value)))
-        return p if p.is_absolute() else self.base / p
-
-    def number(self, key: str, default: Any = _MISSING, positive: bool = False, nonnegative: bool = False) -> Any:
-        value = self._pop(key, default)
-        if value is default and default is not _MISSING:
-            return value
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-            raise ConfigError(f"{self.where}.{key} = {value!r}: expected a finite number")
-        if positive and value <= 0:
-            raise ConfigError(f"{self.where}.{key} = {value!r}: must be positive")
-        if nonnegative and value < 0:
-            raise ConfigError(f"{self.where}.{key} = {value!r}: must not be negative")
-        return float(value)
-
-    def integer(self, key: str, default: Any = _MISSING, minimum: int | None = None) -> Any:
-        value = self._pop(key, default)
-        if value is default and default is not _MISSING:
-            return value
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{self.where}.{key} = {value!r}: expected an integer")
-        if minimum is not None and value < minimum:
-            raise ConfigError(f"{self.where}.{key} = {value!r}: must be at least {minimum}")
-        return value
-
-    def ints(self, key: str, length: int | None, default: Any = _MISSING) -> Any:
-        value = self._pop(key, default)
-        if value is default and default is not _MISSING:
-            return value
-        ok = isinstance(value, list) and all(isinstance(v, int) and not isinstance(v, bool) for v in value)
-        if not ok or (length is not None and len(value) != length):
-            raise ConfigError(f"{self.where}.{key} = {value!r}: expected a list of {length or 'n'} integers")
-        return tuple(value)
-
-    def vector(self, key: str, length: int, default: Any = _MISSING) -> Any:
-        value = self._pop(key, default)
-        if value is default and default is not _MISSING:
-            return value if value is None else np.asarray(value, dtype=float)
-        arr = self._array(key, value)
-        if arr.shape != (length,):
-            raise ConfigError(f"{self.where}.{key} = {value!r}: expected {length} numbers")
-        return arr
-
-    def points(self, key: str) -> np.ndarray:
-        value = self._pop(key, _MISSING)
-        arr = self._array(key, value)
-        if arr.ndim != 2 or arr.shape[1] != 3 or len(arr) == 0:
-            raise ConfigError(f"{self.where}.{key} = {value!r}: expected a list of [x, y, z] points (mm)")
-        return arr
-
-    def matrix(self, key: str, default: Any = _MISSING) -> Any:
-        value = self._pop(key, default)
-        if value is default and default is not _MISSING:
-            return value
-        T = self._array(key, value)
-        if T.shape != (4, 4):
-            raise ConfigError(f"{self.where}.{key}: expected a 4x4 matrix (4 rows of 4), got shape {T.shape}")
-        if not np.allclose(T[3], [0, 0, 0, 1]):
-            raise ConfigError(f"{self.where}.{key}: last row must be [0, 0, 0, 1], got {T[3].tolist()}")
-        R = T[:3, :3]
-        defect = float(np.max(np.abs(R.T @ R - np.eye(3))))
-        if defect > MATRIX_TOL or np.linalg.det(R) < 0:
-            raise ConfigError(f"{self.where}.{key}: rotation part is not a rotation (|R^T R - I| = {defect:.2g}, "
-                              f"det = {np.linalg.det(R):.4f})")
-        T = T.copy()
-        T[:3, :3] = orthonormalize(R)
-        return T
-
-    def _array(self, key: str, value: Any) -> np.ndarray:
-        try:
-            arr = np.asarray(value, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise ConfigError(f"{self.where}.{key} = {value!r}: expected numbers") from exc
-        if not np.all(np.isfinite(arr)):
-            raise ConfigError(f"{self.where}.{key} = {value!r}: numbers must be finite")
-        return arr
-
-    def _pop(self, key: str, default: Any) -> Any:
-        if key in self.raw:
-            return self.raw.pop(key)
-        if default is _MISSING:
-            raise ConfigError(f"{self.where}.{key}: missing")
-        return default
+# name -> reader of the optional sections; each has a CellConfig field of the same name. Add yours here.
+OPTIONAL_SECTIONS: dict[str, Callable[[ConfigTable], Any]] = {
+    "tracker": _tracker,
+    "sim": _sim,
+    "layout": _layout,
+    "robot": _robot,
+}

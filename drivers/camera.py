@@ -31,12 +31,17 @@ class CameraSettings:
 @dataclass(frozen=True)
 class Frame:
     """One grabbed image: ``image`` (height, width) uint8 for Mono8 (uint16 for deeper mono formats),
-    ``frame_number`` counts the frames grabbed since open, ``host_time_s`` is ``time.time()`` on arrival."""
+    ``frame_number`` counts the frames grabbed since open, ``host_time_s`` is ``time.time()`` on arrival,
+    ``requested_time_s`` is ``time.time()`` when :meth:`Camera.grab` was called (the frame's exposure
+    started after it), ``frame_id`` is the camera's (GenTL producer's) own number of the frame, ``None``
+    where it has none."""
 
     image: np.ndarray
     frame_number: int
     host_time_s: float
     pixel_format: str = "Mono8"
+    frame_id: int | None = None
+    requested_time_s: float | None = None
 
 
 @runtime_checkable
@@ -45,7 +50,8 @@ class Camera(Protocol):
 
     Failures are :class:`~monoguide.drivers.errors.DeviceError` subclasses: ``DeviceNotFound`` when it is
     absent, ``DeviceTimeout`` when no frame came in time, ``DeviceDisconnected`` when it went away,
-    ``DeviceSettingRejected`` when a needed setting is impossible.
+    ``DeviceSettingRejected`` when a needed setting is impossible, ``DeviceBusy`` when another client holds
+    it. No other exception leaves a camera. Calls from several threads are serialised (a lock per camera).
     """
 
     def open(self) -> CameraIdentity:
@@ -60,7 +66,8 @@ class Camera(Protocol):
         ...
 
     def grab(self, timeout_s: float) -> Frame:
-        """One frame exposed after this call (software trigger, or the next free-running frame)."""
+        """One frame whose exposure started after this call (software trigger, or a free-running frame
+        past the ones in flight); frames queued or late from earlier requests are never returned."""
         ...
 
     def close(self) -> None: ...

@@ -58,6 +58,91 @@ class DeviceSettingRejected(DeviceError):
     plc_code = 406
 
 
+class DeviceBusy(DeviceError):
+    """Another client holds the device (a serial port locked by another process, a state file claimed by a
+    running simulated cell); the message names the port or path."""
+
+    code = "DEVICE_BUSY"
+    plc_code = 407
+
+
+class DeviceRequestInvalid(DeviceError):
+    """A request the device's protocol cannot carry (a nest name with a space, a non-ASCII word, an
+    over-long line); the message names the value. Nothing was sent."""
+
+    code = "DEVICE_REQUEST_INVALID"
+    plc_code = 408
+
+
+# --- robot (420-449) ---------------------------------------------------------------------------
+
+
+class RobotError(DeviceError):
+    """The robot could not do what the cycle asked; the message names the robot and what it reported."""
+
+    code = "ROBOT_ERROR"
+    plc_code = 420
+
+
+class RobotNotReady(RobotError):
+    """The robot is not ready for the cycle: no program running, not powered, not in remote/automatic."""
+
+    code = "ROBOT_NOT_READY"
+    plc_code = 421
+
+
+class RobotProtectiveStop(RobotError):
+    """The robot is in a protective or emergency stop (safety mode not normal)."""
+
+    code = "ROBOT_PROTECTIVE_STOP"
+    plc_code = 422
+
+
+class RobotPositionTimeout(RobotError):
+    """The robot did not report the requested measuring pose in position within the configured time."""
+
+    code = "ROBOT_POSITION_TIMEOUT"
+    plc_code = 423
+
+
+class RobotAckTimeout(RobotError):
+    """The robot did not acknowledge the offset's sequence number within the configured time."""
+
+    code = "ROBOT_ACK_TIMEOUT"
+    plc_code = 424
+
+
+class RobotWorkerCrashed(RobotError):
+    """The process holding the robot's client library ended unexpectedly; it is restarted on the next call."""
+
+    code = "ROBOT_WORKER_CRASHED"
+    plc_code = 425
+
+
+class RobotCommandRejected(RobotError):
+    """The robot program refused a request (unknown measuring pose, offset out of its limits); its status
+    code is in the message."""
+
+    code = "ROBOT_COMMAND_REJECTED"
+    plc_code = 426
+
+
+class RobotPoseMismatch(RobotError):
+    """The robot reports in position but its actual flange pose is farther from the taught measuring pose than
+    the configured tolerance."""
+
+    code = "ROBOT_POSE_MISMATCH"
+    plc_code = 427
+
+
+class RobotMessageInvalid(RobotError):
+    """A robot message broke the protocol (malformed, truncated, oversized or hostile XML, a bad RTDE
+    package); the message quotes what arrived. Nothing in it was used."""
+
+    code = "ROBOT_MESSAGE_INVALID"
+    plc_code = 428
+
+
 class ConfigError(MonoguideError):
     """The cell configuration is invalid; the message names the key, the value and why."""
 

@@ -1,20 +1,21 @@
 """The camera port on a GenICam / GenTL camera through harvesters (GigE Vision, USB3 Vision, ...).
 
 The GenTL producer (``.cti``) comes from the camera vendor; CI uses ``viky.cti`` from the ``genicam``
-wheel. Blocking calls: the daemon runs them in worker threads. Every wait has a timeout, every fetched
-buffer is re-queued (``with`` block). A camera without a software trigger is free-running: :meth:`grab`
-drops the frames already queued and returns the next one.
+wheel. Blocking calls: the daemon runs them in worker threads, and one lock per camera keeps two threads
+from interleaving their calls. Every wait has a timeout, every fetched buffer is re-queued. Every grab
+returns a frame exposed after the request (:mod:`monoguide.drivers.genicam_frames`: queued frames
+flushed, late trigger answers and frames in flight dropped). Settings are checked against the node limits
+and every library exception is translated at this boundary (:mod:`monoguide.drivers.genicam_nodes`).
 """
 
 from __future__ import annotations
 
 import logging
-import time
+import math
+import threading
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-from genicam.gentl import GenericException, TimeoutException
 from harvesters.core import Harvester, ImageAcquirer
 
 from monoguide.drivers.camera import CameraIdentity, CameraSettings, Frame
@@ -22,27 +23,33 @@ from monoguide.drivers.errors import (
     DeviceDisconnected,
     DeviceError,
     DeviceNotFound,
+    DeviceRequestInvalid,
     DeviceSettingRejected,
-    DeviceTimeout,
 )
+from monoguide.drivers.genicam_frames import MONO_DTYPES, FreshFrames
+from monoguide.drivers.genicam_nodes import device_errors, enable_software_trigger, set_enum, set_number
 
 log = logging.getLogger(__name__)
 
-MONO_DTYPES = {"Mono8": np.uint8, "Mono10": np.uint16, "Mono12": np.uint16, "Mono16": np.uint16}
+__all__ = ["MONO_DTYPES", "GenICamCamera"]
 
 
 class GenICamCamera:
     """:class:`~monoguide.drivers.camera.Camera` on harvesters. The device is chosen by ``serial`` or
-    ``user_name`` (GenICam ``DeviceUserID``); with neither, the producer must offer exactly one."""
+    ``user_name`` (GenICam ``DeviceUserID``); with neither, the producer must offer exactly one.
+    ``in_flight_frames``: how many frames a free-running camera may have in flight at a request (dropped)."""
 
-    def __init__(self, cti: str | Path, serial: str | None = None, user_name: str | None = None) -> None:
+    def __init__(self, cti: str | Path, serial: str | None = None, user_name: str | None = None,
+                 in_flight_frames: int = 2) -> None:
         self.cti = Path(cti)
         self.serial = serial
         self.user_name = user_name
+        self.in_flight_frames = in_flight_frames
+        self._lock = threading.RLock()
         self._harvester: Harvester | None = None
         self._acquirer: ImageAcquirer | None = None
         self._identity: CameraIdentity | None = None
-        self._software_trigger = False
+        self._frames_source: FreshFrames | None = None
         self._pixel_format = "Mono8"
         self._frames = 0
 
@@ -52,103 +59,93 @@ class GenICamCamera:
 
     @property
     def software_trigger(self) -> bool:
-        return self._software_trigger
+        return self._frames_source is not None and self._frames_source.triggered
 
     @property
     def node_map(self) -> Any:
-        """The device's GenICam node map, for features the port does not cover (diagnostics, tests)."""
+        """The device's GenICam node map, for features the port does not cover (diagnostics, tests). Calls
+        on it are not translated: use the port's methods in the cycle."""
         return self._require_open().remote_device.node_map
 
     def open(self) -> CameraIdentity:
-        if not self.cti.is_file():
-            raise DeviceNotFound(f"GenTL producer {self.cti} does not exist")
-        self._harvester = Harvester()
-        try:
-            self._harvester.add_file(str(self.cti), check_existence=True)
-            self._harvester.update()
-            info = self._choose_device(self._harvester.device_info_list)
-            self._acquirer = self._harvester.create({"id_": info.id_})
-        except DeviceError:
-            self.close()
-            raise
-        except (GenericException, OSError) as exc:
-            self.close()
-            raise DeviceNotFound(f"camera via {self.cti.name}: cannot open: {exc}") from exc
-        self._identity = CameraIdentity(
-            vendor=str(_info(info, "vendor")), model=str(_info(info, "model")),
-            serial=str(_info(info, "serial_number")), user_name=_info(info, "user_defined_name") or None,
-            version=_info(info, "version"),
-        )
-        self._frames = 0
-        log.info("camera open: %s", self._identity)
-        return self._identity
+        with self._lock:
+            if self._acquirer is not None:
+                return self._identity  # type: ignore[return-value]
+            self._acquirer, self._identity = self._connect()
+            self._frames_source = FreshFrames(self._acquirer, f"camera {self._name()}",
+                                              in_flight=self.in_flight_frames)
+            self._frames = 0
+            log.info("camera open: %s", self._identity)
+            return self._identity
 
     def configure(self, settings: CameraSettings) -> None:
-        acquirer = self._require_open()
-        was_running = acquirer.is_acquiring()
-        if was_running:
-            acquirer.stop()
-        nodes = acquirer.remote_device.node_map
-        try:
+        with self._lock:
+            acquirer = self._require_open()
+            name = f"camera {self._name()}"
+            with device_errors(name, "stopping the acquisition to configure"):
+                was_running = acquirer.is_acquiring()
+                if was_running:
+                    acquirer.stop()
+                nodes = acquirer.remote_device.node_map
             if settings.pixel_format not in MONO_DTYPES:
-                raise DeviceSettingRejected(f"pixel format {settings.pixel_format!r}: monoguide needs one of "
-                                            f"{sorted(MONO_DTYPES)}")
-            self._set_enum(nodes, "PixelFormat", settings.pixel_format, required=True)
+                raise DeviceSettingRejected(f"{name}: pixel format {settings.pixel_format!r}: monoguide needs one "
+                                            f"of {sorted(MONO_DTYPES)}")
+            set_enum(nodes, name, "PixelFormat", settings.pixel_format, required=True)
             self._pixel_format = settings.pixel_format
             if settings.region is not None:
                 ox, oy, w, h = settings.region
                 # shrink first, then move, then grow: each step stays inside the sensor
-                self._set_number(nodes, "OffsetX", 0, required=False)
-                self._set_number(nodes, "OffsetY", 0, required=False)
-                self._set_number(nodes, "Width", w, required=True)
-                self._set_number(nodes, "Height", h, required=True)
-                self._set_number(nodes, "OffsetX", ox, required=ox != 0)
-                self._set_number(nodes, "OffsetY", oy, required=oy != 0)
-            if settings.exposure_us is not None and not self._set_number(nodes, "ExposureTime",
-                                                                         settings.exposure_us, required=False):
-                self._set_number(nodes, "ExposureTimeAbs", settings.exposure_us, required=False)
+                set_number(nodes, name, "OffsetX", 0, required=False)
+                set_number(nodes, name, "OffsetY", 0, required=False)
+                set_number(nodes, name, "Width", w, required=True)
+                set_number(nodes, name, "Height", h, required=True)
+                set_number(nodes, name, "OffsetX", ox, required=ox != 0)
+                set_number(nodes, name, "OffsetY", oy, required=oy != 0)
+            if settings.exposure_us is not None and not set_number(nodes, name, "ExposureTime",
+                                                                   settings.exposure_us, required=False):
+                set_number(nodes, name, "ExposureTimeAbs", settings.exposure_us, required=False)
             if settings.gain_db is not None:
-                self._set_number(nodes, "Gain", settings.gain_db, required=False)
-            self._software_trigger = self._enable_software_trigger(nodes)
-        except GenericException as exc:
-            raise DeviceDisconnected(f"camera {self._name()}: configuring failed: {exc}") from exc
-        log.info("camera %s: %s, %s", self._name(), settings,
-                 "software trigger" if self._software_trigger else "free-running")
-        if was_running:
-            acquirer.start()
+                set_number(nodes, name, "Gain", settings.gain_db, required=False)
+            trigger = self._software_trigger(nodes) if enable_software_trigger(nodes, name) else None
+            self._frames_source = FreshFrames(acquirer, name, trigger, in_flight=self.in_flight_frames)
+            log.info("%s: %s, %s", name, settings, "software trigger" if trigger else "free-running")
+            if was_running:
+                with device_errors(name, "restarting the acquisition"):
+                    acquirer.start()
 
     def grab(self, timeout_s: float) -> Frame:
-        acquirer = self._require_open()
-        try:
-            if not acquirer.is_acquiring():
-                acquirer.start()
-            if self._software_trigger:
-                acquirer.remote_device.node_map.TriggerSoftware.execute()
-            else:
-                self._drop_queued_frames(acquirer)
-            buffer = acquirer.fetch(timeout=timeout_s)
-            with buffer:
-                image = self._copy_image(buffer)
-        except TimeoutException as exc:
-            raise DeviceTimeout(f"camera {self._name()}: no frame within {timeout_s:g} s") from exc
-        except (GenericException, AttributeError, OSError) as exc:
-            # the producer or the device is gone (cable pulled, device reset): the acquirer is unusable
-            raise DeviceDisconnected(f"camera {self._name()}: grab failed: {exc!r}") from exc
-        self._frames += 1
-        return Frame(image, self._frames, time.time(), self._pixel_format)
+        if isinstance(timeout_s, bool) or not isinstance(timeout_s, int | float) or not timeout_s > 0 \
+                or not math.isfinite(timeout_s):
+            raise DeviceRequestInvalid(f"camera {self._name()}: grab timeout {timeout_s!r} s must be a finite "
+                                       f"number > 0")
+        with self._lock:
+            self._require_open()
+            assert self._frames_source is not None
+            with device_errors(f"camera {self._name()}", f"grab (timeout {timeout_s:g} s)"):
+                fresh = self._frames_source.grab(timeout_s)
+            self._frames += 1
+            return Frame(fresh.image, self._frames, fresh.received_time_s, fresh.pixel_format, fresh.frame_id,
+                         fresh.requested_time_s)
 
     def close(self) -> None:
-        if self._acquirer is not None:
-            try:
-                if self._acquirer.is_acquiring():
-                    self._acquirer.stop()
-                self._acquirer.destroy()
-            except (GenericException, AttributeError, OSError) as exc:
-                log.warning("camera %s: close: %s", self._name(), exc)
-        if self._harvester is not None:
-            self._harvester.reset()
-        self._acquirer = None
-        self._harvester = None
+        with self._lock:
+            if self._acquirer is not None:
+                try:
+                    with device_errors(f"camera {self._name()}", "close"):
+                        if self._acquirer.is_acquiring():
+                            self._acquirer.stop()
+                        self._acquirer.destroy()
+                except DeviceError as exc:
+                    log.warning("%s", exc)
+            if self._harvester is not None:
+                try:
+                    with device_errors(f"camera {self._name()}", "releasing the producer"):
+                        self._harvester.reset()
+                except DeviceError as exc:
+                    log.warning("%s", exc)
+            self._acquirer = None
+            self._harvester = None
+            self._frames_source = None
 
     def __enter__(self) -> GenICamCamera:
         self.open()
@@ -158,6 +155,33 @@ class GenICamCamera:
         self.close()
 
     # --- private -------------------------------------------------------------------------------
+
+    def _connect(self) -> tuple[ImageAcquirer, CameraIdentity]:
+        """Load the producer, choose the device, create its acquirer (the only place harvesters is built)."""
+        if not self.cti.is_file():
+            raise DeviceNotFound(f"GenTL producer {self.cti} does not exist")
+        try:
+            with device_errors(f"camera via {self.cti.name}", "open"):
+                self._harvester = Harvester()
+                try:
+                    self._harvester.add_file(str(self.cti), check_existence=True)
+                    self._harvester.update()
+                except OSError as exc:
+                    raise DeviceNotFound(f"camera via {self.cti.name}: cannot load the producer: {exc}") from exc
+                info = self._choose_device(self._harvester.device_info_list)
+                acquirer = self._harvester.create({"id_": info.id_})
+        except DeviceDisconnected as exc:  # the producer could not reach the device: it is not there
+            self.close()
+            raise DeviceNotFound(str(exc)) from exc
+        except BaseException:
+            self.close()
+            raise
+        identity = CameraIdentity(
+            vendor=str(_info(info, "vendor")), model=str(_info(info, "model")),
+            serial=str(_info(info, "serial_number")), user_name=_info(info, "user_defined_name") or None,
+            version=_info(info, "version"),
+        )
+        return acquirer, identity
 
     def _choose_device(self, devices: list[Any]) -> Any:
         if not devices:
@@ -178,6 +202,12 @@ class GenICamCamera:
             raise DeviceNotFound(f"camera via {self.cti.name}: {len(chosen)} match {wanted}; found: {found}")
         return chosen[0]
 
+    def _software_trigger(self, nodes: Any) -> Any:
+        def fire() -> None:
+            nodes.TriggerSoftware.execute()  # translated by grab's device_errors
+
+        return fire
+
     def _require_open(self) -> ImageAcquirer:
         if self._acquirer is None:
             raise DeviceDisconnected("camera is not open")
@@ -186,63 +216,10 @@ class GenICamCamera:
     def _name(self) -> str:
         return self._identity.serial if self._identity else str(self.serial or self.user_name or "?")
 
-    def _set_enum(self, nodes: Any, name: str, value: str, required: bool) -> bool:
-        if not nodes.has_node(name):
-            return self._lacking(name, value, required)
-        node = nodes.get_node(name)
-        if value not in node.symbolics:
-            raise DeviceSettingRejected(f"camera {self._name()}: {name} = {value!r} not supported; "
-                                        f"it offers {list(node.symbolics)}")
-        node.value = value
-        return True
-
-    def _set_number(self, nodes: Any, name: str, value: float, required: bool) -> bool:
-        if not nodes.has_node(name):
-            return self._lacking(name, value, required)
-        node = nodes.get_node(name)
-        lo, hi = node.min, node.max
-        if not lo <= value <= hi:
-            raise DeviceSettingRejected(f"camera {self._name()}: {name} = {value} outside [{lo}, {hi}]")
-        node.value = type(node.value)(value)
-        return True
-
-    def _lacking(self, name: str, value: object, required: bool) -> bool:
-        if required:
-            raise DeviceSettingRejected(f"camera {self._name()}: has no {name} feature (wanted {value!r})")
-        log.info("camera %s: no %s feature, %r not set", self._name(), name, value)
-        return False
-
-    def _enable_software_trigger(self, nodes: Any) -> bool:
-        names = ("TriggerSelector", "TriggerMode", "TriggerSource", "TriggerSoftware")
-        if not all(nodes.has_node(n) for n in names):
-            log.info("camera %s: no software trigger; free-running", self._name())
-            return False
-        if "FrameStart" in nodes.TriggerSelector.symbolics:
-            nodes.TriggerSelector.value = "FrameStart"
-        nodes.TriggerMode.value = "On"
-        nodes.TriggerSource.value = "Software"
-        return True
-
-    def _drop_queued_frames(self, acquirer: ImageAcquirer) -> None:
-        # frames exposed before the request; bounded by the number of buffers
-        for _ in range(max(1, acquirer.num_buffers) + 1):
-            buffer = acquirer.try_fetch(timeout=0.0001)
-            if buffer is None:
-                return
-            buffer.queue()
-
-    def _copy_image(self, buffer: Any) -> np.ndarray:
-        component = buffer.payload.components[0]
-        fmt = component.data_format
-        if fmt not in MONO_DTYPES:
-            raise DeviceSettingRejected(f"camera {self._name()}: delivered {fmt}, expected a mono format")
-        data = np.asarray(component.data).view(MONO_DTYPES[fmt])
-        return data.reshape(component.height, component.width).copy()
-
 
 def _info(device_info: Any, name: str) -> Any:
     """One field of a GenTL device info; ``None`` where the producer does not provide it."""
     try:
         return getattr(device_info, name)
-    except (GenericException, AttributeError):
+    except Exception:  # genicam.gentl errors or a missing attribute: the producer does not provide it
         return None

@@ -2,19 +2,32 @@
 
 Three layers with one job each: :class:`SerialLineChannel` moves lines over the wire with a deadline;
 :mod:`monoguide.drivers.tracker_protocol` encodes and decodes them; :class:`SerialLaserTracker` gives
-them their meaning (identify, set units, measure a point). Every read has a timeout; replies are
-matched to requests by tag, and a late reply to an earlier (timed-out) request is logged and dropped.
+them their meaning (identify, set units, measure a point). Every read and every write has a deadline;
+replies are matched to requests by tag, and a late reply to an earlier (timed-out) request is logged and
+dropped. The port is opened exclusively (a second client gets :class:`DeviceBusy`, not garbled replies),
+and one lock per tracker keeps calls from worker threads from interleaving their requests.
 """
 
 from __future__ import annotations
 
+import errno
 import logging
+import math
+import threading
 import time
 from typing import Protocol, runtime_checkable
 
 import serial
 
-from monoguide.drivers.errors import DeviceDisconnected, DeviceNotFound, DeviceProtocolError, DeviceTimeout
+from monoguide.drivers.errors import (
+    DeviceBusy,
+    DeviceDisconnected,
+    DeviceNotFound,
+    DeviceProtocolError,
+    DeviceRequestInvalid,
+    DeviceSettingRejected,
+    DeviceTimeout,
+)
 from monoguide.drivers.tracker_protocol import (
     CMD_IDENTIFY,
     CMD_MEASURE_POINT,
@@ -24,6 +37,7 @@ from monoguide.drivers.tracker_protocol import (
     Reply,
     TrackerIdentity,
     TrackerMeasurement,
+    check_request_word,
     decode_reply,
     encode_request,
     parse_identity,
@@ -58,17 +72,32 @@ class LaserTracker(Protocol):
 
 
 class SerialLineChannel:
-    """Bytes on the wire: write one line, read one line before a deadline, over an open ``serial.Serial``."""
+    """Bytes on the wire: write one line, read one line, each before a deadline, over an open
+    ``serial.Serial``."""
 
     def __init__(self, port: serial.Serial, name: str) -> None:
         self._port = port
         self._name = name
         self._buffer = bytearray()
 
-    def write_line(self, line: bytes) -> None:
+    def write_line(self, line: bytes, deadline: float) -> None:
+        """Send ``line`` and wait until it has left the output buffer, both before ``deadline``
+        (``time.monotonic()``); else :class:`DeviceTimeout` (flow control held off, nobody reading).
+        Unlike ``serial.Serial.flush()`` (``tcdrain``, no timeout), the wait polls the output queue."""
+        remaining = deadline - time.monotonic()
+        if remaining <= 0:
+            raise DeviceTimeout(f"{self._name}: no time left to send {line[:40]!r}")
         try:
+            self._port.write_timeout = remaining
             self._port.write(line)
-            self._port.flush()
+            while self._port.out_waiting > 0:
+                if time.monotonic() >= deadline:
+                    self._port.reset_output_buffer()
+                    raise DeviceTimeout(f"{self._name}: {line[:40]!r} did not leave the output buffer in time "
+                                        f"(flow control held off?)")
+                time.sleep(0.002)
+        except serial.SerialTimeoutException as exc:
+            raise DeviceTimeout(f"{self._name}: writing {line[:40]!r} timed out (nobody reading?)") from exc
         except (serial.SerialException, OSError) as exc:
             raise DeviceDisconnected(f"{self._name}: write failed: {exc}") from exc
 
@@ -104,7 +133,8 @@ class SerialLineChannel:
 
 
 class SerialLaserTracker:
-    """:class:`LaserTracker` over a serial line (RS-232 or a USB adapter; a pty for the simulator)."""
+    """:class:`LaserTracker` over a serial line (RS-232 or a USB adapter; a pty for the simulator).
+    Thread-safe: each call holds the tracker's lock for its whole request/reply exchange."""
 
     def __init__(self, port: str, baud: int = DEFAULT_BAUD, timeout_s: float = DEFAULT_TIMEOUT_S) -> None:
         self.port = port
@@ -115,40 +145,45 @@ class SerialLaserTracker:
         self._identity: TrackerIdentity | None = None
         self._unit = "MM"
         self._last_tag = 0
+        self._lock = threading.RLock()
 
     @property
     def identity(self) -> TrackerIdentity | None:
         return self._identity
 
     def open(self) -> TrackerIdentity:
-        try:
-            self._serial = serial.Serial(self.port, self.baud, timeout=0.2, write_timeout=self.timeout_s)
-        except (serial.SerialException, OSError) as exc:
-            raise DeviceNotFound(f"tracker on {self.port}: cannot open the port: {exc}") from exc
-        self._channel = SerialLineChannel(self._serial, f"tracker on {self.port}")
-        try:
-            self._channel.discard_input()  # stale replies from an earlier client are not ours
-            self._identity = parse_identity(self._transact(CMD_IDENTIFY))
-            self._unit = parse_unit(self._transact(CMD_SET_UNIT, "MM"))
-        except BaseException:
-            self.close()
-            raise
-        log.info("tracker on %s: %s", self.port, self._identity)
-        return self._identity
+        with self._lock:
+            if self._serial is not None:
+                raise DeviceBusy(f"tracker on {self.port}: already open")
+            self._serial = _open_exclusively(self.port, self.baud, self.timeout_s)
+            self._channel = SerialLineChannel(self._serial, f"tracker on {self.port}")
+            try:
+                self._channel.discard_input()  # stale replies from an earlier client are not ours
+                self._identity = parse_identity(self._transact(CMD_IDENTIFY))
+                self._unit = parse_unit(self._transact(CMD_SET_UNIT, "MM"))
+            except BaseException:
+                self.close()
+                raise
+            log.info("tracker on %s: %s", self.port, self._identity)
+            return self._identity
 
     def measure_point(self, nest: str | None = None, timeout_s: float | None = None) -> TrackerMeasurement:
-        args = (nest,) if nest else ()
-        reply = self._transact(CMD_MEASURE_POINT, *args, timeout_s=timeout_s)
-        return parse_measurement(reply, self._unit, nest)
+        """The SMR in ``nest`` (``None``: wherever the beam is locked). A nest name the protocol cannot carry
+        (empty, a space, not ASCII) is :class:`DeviceRequestInvalid`, and nothing is sent."""
+        args = () if nest is None else (check_request_word(nest),)
+        with self._lock:
+            reply = self._transact(CMD_MEASURE_POINT, *args, timeout_s=timeout_s)
+            return parse_measurement(reply, self._unit, nest)
 
     def close(self) -> None:
-        if self._serial is not None:
-            try:
-                self._serial.close()
-            except (serial.SerialException, OSError) as exc:
-                log.warning("tracker on %s: close failed: %s", self.port, exc)
-        self._serial = None
-        self._channel = None
+        with self._lock:
+            if self._serial is not None:
+                try:
+                    self._serial.close()
+                except (serial.SerialException, OSError) as exc:
+                    log.warning("tracker on %s: close failed: %s", self.port, exc)
+            self._serial = None
+            self._channel = None
 
     def __enter__(self) -> SerialLaserTracker:
         self.open()
@@ -167,8 +202,10 @@ class SerialLaserTracker:
         self._last_tag = self._last_tag % MAX_TAG + 1
         tag = self._last_tag
         timeout = self.timeout_s if timeout_s is None else timeout_s
+        if not isinstance(timeout, int | float) or not math.isfinite(timeout) or timeout <= 0:
+            raise DeviceRequestInvalid(f"tracker on {self.port}: timeout {timeout!r} s must be a finite number > 0")
         deadline = time.monotonic() + timeout
-        self._channel.write_line(encode_request(tag, command, *args))
+        self._channel.write_line(encode_request(tag, command, *args), deadline)
         while True:
             try:
                 line = self._channel.read_line(deadline)
@@ -182,3 +219,16 @@ class SerialLaserTracker:
                 continue
             raise_for_error(reply, command)
             return reply
+
+
+def _open_exclusively(port: str, baud: int, timeout_s: float) -> serial.Serial:
+    """Open ``port`` with an exclusive lock (``flock``): a second client gets :class:`DeviceBusy`."""
+    try:
+        return serial.Serial(port, baud, timeout=0.2, write_timeout=timeout_s, exclusive=True)
+    except ValueError as exc:  # pyserial's word for an impossible setting (baud rate, ...)
+        raise DeviceSettingRejected(f"tracker on {port}: baud {baud!r}: {exc}") from exc
+    except (serial.SerialException, OSError) as exc:
+        if getattr(exc, "errno", None) in (errno.EAGAIN, errno.EWOULDBLOCK) or "exclusively lock" in str(exc):
+            raise DeviceBusy(f"tracker on {port}: the port is in use by another client (locked); close it "
+                             f"there first") from exc
+        raise DeviceNotFound(f"tracker on {port}: cannot open the port: {exc}") from exc

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from monoguide.drivers.errors import DeviceFault, DeviceProtocolError
+from monoguide.drivers.errors import DeviceFault, DeviceProtocolError, DeviceRequestInvalid
 
 MAX_LINE_BYTES = 256
 MAX_TAG = 999_999
@@ -80,16 +80,26 @@ class TrackerMeasurement:
 
 
 def encode_request(tag: int, command: str, *args: str) -> bytes:
-    """``(17, "MEAS:POINT?", "B1")`` -> ``b"17 MEAS:POINT? B1\\n"``."""
-    if not 1 <= tag <= MAX_TAG:
-        raise ValueError(f"tag {tag} outside 1..{MAX_TAG}")
+    """``(17, "MEAS:POINT?", "B1")`` -> ``b"17 MEAS:POINT? B1\\n"``. A request the protocol cannot carry
+    raises :class:`DeviceRequestInvalid` naming the value (nothing is sent)."""
+    if isinstance(tag, bool) or not isinstance(tag, int) or not 1 <= tag <= MAX_TAG:
+        raise DeviceRequestInvalid(f"tracker request tag {tag!r} outside 1..{MAX_TAG}")
     for word in (command, *args):
-        if not word or any(c.isspace() for c in word) or not word.isascii():
-            raise ValueError(f"request word {word!r} must be non-empty ASCII without spaces")
+        check_request_word(word)
     line = " ".join((str(tag), command, *args)).encode("ascii") + b"\n"
     if len(line) > MAX_LINE_BYTES:
-        raise ValueError(f"request longer than {MAX_LINE_BYTES} bytes")
+        raise DeviceRequestInvalid(f"tracker request {line[:40]!r}... longer than {MAX_LINE_BYTES} bytes")
     return line
+
+
+def check_request_word(word: str) -> str:
+    """``word`` if it can be one word of a request (a command, a nest name): non-empty printable ASCII
+    without spaces; else :class:`DeviceRequestInvalid` naming it."""
+    if (not isinstance(word, str) or not word or not word.isascii() or not word.isprintable()
+            or any(c.isspace() for c in word)):
+        raise DeviceRequestInvalid(f"tracker request word {word!r} must be non-empty printable ASCII "
+                                   f"without spaces")
+    return word
 
 
 def decode_request(line: bytes) -> Request:

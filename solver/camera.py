@@ -11,7 +11,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from monoguide.solver.errors import RecordError
+from monoguide.solver.errors import MissingKey, RecordError, UnknownKey
 
 UNDISTORT_TOL_PX = 1e-10
 _UNDISTORT_MAX_ITER = 50
@@ -35,19 +35,25 @@ class CameraModel:
 
     @classmethod
     def from_dict(cls, values: dict, where: str = "camera") -> CameraModel:
-        """Build from a mapping with the field names; raises :class:`RecordError` naming the bad key."""
+        """Build from a mapping with exactly the field names; raises a :class:`RecordError` naming the
+        bad key. Every coefficient is required (an undistorted camera says ``k1 = 0``): a missing one
+        is :class:`MissingKey`, an unknown one :class:`UnknownKey` with the closest known name."""
         if not isinstance(values, dict):
             raise RecordError(f"{where}: expected an object, got {type(values).__name__}")
+        names = [f.name for f in fields(cls)]
+        for key in values:
+            if key not in names:
+                raise UnknownKey.naming(str(key), names, where)
         kwargs = {}
-        for f in fields(cls):
-            if f.name not in values:
-                if f.name in ("k1", "k2", "p1", "p2"):
-                    continue
-                raise RecordError(f"{where}.{f.name}: missing")
-            v = values[f.name]
+        for name in names:
+            if name not in values:
+                raise MissingKey(f"{where}.{name}: missing (every intrinsic is required; say 0.0 for none)")
+            v = values[name]
             if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-                raise RecordError(f"{where}.{f.name}: expected a finite number, got {v!r}")
-            kwargs[f.name] = int(v) if f.name in ("width", "height") else float(v)
+                raise RecordError(f"{where}.{name}: expected a finite number, got {v!r}")
+            if name in ("width", "height") and v != int(v):
+                raise RecordError(f"{where}.{name}: expected a whole number of pixels, got {v!r}")
+            kwargs[name] = int(v) if name in ("width", "height") else float(v)
         model = cls(**kwargs)
         if model.width <= 0 or model.height <= 0:
             raise RecordError(f"{where}: image size must be positive, got {model.width} x {model.height}")

@@ -10,6 +10,9 @@ Ranges of ``plc_code``: 1xx measurement record, 2xx pose solve, 3xx hole detecti
 
 from __future__ import annotations
 
+import difflib
+from collections.abc import Iterable
+
 
 class MonoguideError(Exception):
     """Root of every monoguide failure. ``code`` and ``plc_code`` are stable across releases."""
@@ -57,6 +60,28 @@ class NotARotation(RecordError):
     plc_code = 104
 
 
+class MissingKey(RecordError):
+    """A required key of the record (or of one of its objects) is absent: nothing defaults silently."""
+
+    code = "RECORD_MISSING_KEY"
+    plc_code = 107
+
+
+class UnknownKey(RecordError):
+    """A key the format does not define (often a typo, ``sigma_pix``): refused, never dropped."""
+
+    code = "RECORD_UNKNOWN_KEY"
+    plc_code = 108
+
+    @classmethod
+    def naming(cls, key: str, known: Iterable[str], where: str) -> UnknownKey:
+        """The error for ``key`` in the object at ``where``, suggesting the closest of ``known``."""
+        close = difflib.get_close_matches(key, sorted(known), n=1, cutoff=0.6)
+        hint = f"; did you mean {close[0]}?" if close else f"; known keys: {', '.join(sorted(known))}"
+        place = f"{where}: " if where else ""
+        return cls(f"{place}unknown key {key!r}{hint}")
+
+
 # --- pose solve (2xx) ---------------------------------------------------------------------------
 
 
@@ -95,6 +120,14 @@ class ResidualTooLarge(SolveFailed):
 class UncertaintyTooLarge(SolveFailed):
     code = "UNCERTAINTY_TOO_LARGE"
     plc_code = 206
+
+
+class InconsistentMeasurement(SolveFailed):
+    """The residual of the solve is too large for the stated noise (chi-square test): some centre,
+    calibration or record is wrong. The message names the observation that explains most of it."""
+
+    code = "INCONSISTENT_MEASUREMENT"
+    plc_code = 207
 
 
 # --- hole detection (3xx) -----------------------------------------------------------------------

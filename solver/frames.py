@@ -12,7 +12,9 @@ import numpy as np
 
 from monoguide.solver.errors import NotARotation
 
-ORTHONORMAL_TOL = 1e-6
+# |R^T R - I| accepted in a given rotation: a matrix printed to 5 decimals is off by about 1e-5
+# (0.0006 deg); 1e-4 still means 0.006 deg. Beyond it the matrix is wrong, not rounded.
+ORTHONORMAL_TOL = 1e-4
 
 
 def make_T(R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -127,15 +129,25 @@ def check_transform(T: np.ndarray, name: str, tol: float = ORTHONORMAL_TOL) -> n
     T = np.asarray(T, dtype=float)
     if T.shape != (4, 4):
         raise NotARotation(f"{name}: expected a 4x4 matrix, got shape {T.shape}")
+    if not np.all(np.isfinite(T)):
+        raise NotARotation(f"{name}: not finite: {T.tolist()}")
     if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0], atol=tol):
         raise NotARotation(f"{name}: last row must be [0, 0, 0, 1], got {T[3].tolist()}")
     R = T[:3, :3]
     defect = float(np.max(np.abs(R.T @ R - np.eye(3))))
     if defect > tol:
-        raise NotARotation(f"{name}: rotation part is not orthonormal (|R^T R - I| = {defect:.3g} > {tol:g})")
+        raise NotARotation(f"{name}: rotation part is not orthonormal: |R^T R - I| = {defect:.3g}, more than "
+            f"rounding explains (up to {tol:g} is accepted and orthonormalised)")
     if np.linalg.det(R) < 0:
         raise NotARotation(f"{name}: rotation part is a reflection (det = {np.linalg.det(R):.6f})")
     return T
+
+
+def rigid_transform(T: np.ndarray, name: str, tol: float = ORTHONORMAL_TOL) -> np.ndarray:
+    """:func:`check_transform`, then the rotation snapped to the nearest orthonormal one: a rounded
+    (printed) matrix is accepted and made exact, a wrong one is refused with its measured defect."""
+    T = check_transform(T, name, tol)
+    return make_T(orthonormalize(T[:3, :3]), T[:3, 3])
 
 
 def orthonormalize(R: np.ndarray) -> np.ndarray:

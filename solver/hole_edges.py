@@ -14,6 +14,7 @@ Failures are the typed errors of :mod:`monoguide.solver.errors`; each names the 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 import cv2
@@ -33,9 +34,18 @@ from monoguide.solver.rim_fit import refine_ellipse_photometric
 SATURATION_GREY = 254.5
 """Grey value (0-255 scale) at or above which a pixel counts as saturated."""
 
+DEFAULT_MIN_CONTRAST_TO_NOISE = 5.0
+"""A hole's rim contrast must be at least this many times the sensor noise sigma: in a frame of pure noise,
+dark blobs of a hole's size reach 3-4 sigma."""
+
+DEFAULT_MAX_RIM_RMS_PX = 0.6
+"""A hole's sub-pixel edge points lie on an ellipse within this RMS (a clean rim: 0.02-0.2 px)."""
+
 _RAY_STEP_PX = 0.5
 _GRAVITY_FLOOR = 0.2  # fraction of the gradient peak below which samples do not vote (noise)
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
+_BIT_DEPTHS = range(8, 17)
+_MONO_FORMAT = re.compile(r"Mono(\d+)(?:p|Packed)?")
 
 
 @dataclass(frozen=True)
@@ -69,11 +79,14 @@ class RimMeasurement:
     valid_fraction: float
 
 
-def as_grey(image: np.ndarray) -> np.ndarray:
+def as_grey(image: np.ndarray, bit_depth: int | None = None) -> np.ndarray:
     """Any supported camera image -> grey (h, w) float32 on the 0-255 scale.
 
-    Accepts (h, w), (h, w, 1), (h, w, 3) BGR and (h, w, 4) BGRA arrays of uint8 or uint16 (uint16 is
-    divided by 257, full scale to full scale). Anything else raises :class:`BadImage`.
+    Accepts (h, w), (h, w, 1), (h, w, 3) BGR and (h, w, 4) BGRA arrays of uint8 or uint16. ``bit_depth``
+    is the number of significant bits of the data (the camera's pixel format: Mono10 -> 10, see
+    :func:`bit_depth_of`): full scale ``2**bit_depth - 1`` maps to 255. Without it uint8 is 8 bits and
+    uint16 is 16 bits (65535 -> 255). uint16 values above ``2**bit_depth - 1`` are refused (the data
+    are not what the bit depth says, e.g. MSB-aligned), as is anything else with :class:`BadImage`.
     """
     if not isinstance(image, np.ndarray):
         raise BadImage(f"image must be a numpy array, got {type(image).__name__}")
@@ -87,12 +100,24 @@ def as_grey(image: np.ndarray) -> np.ndarray:
         raise BadImage(f"image must be (h, w), (h, w, 3) or (h, w, 4), got shape {image.shape}")
     if image.shape[0] < 8 or image.shape[1] < 8:
         raise BadImage(f"image of shape {image.shape} is empty or too small (8 x 8 px at least)")
+    full_scale = _full_scale(image, bit_depth)
     grey = image.reshape(image.shape[0], image.shape[1], channels)[:, :, : min(channels, 3)]
     grey = grey.astype(np.float32)
     grey = cv2.cvtColor(np.ascontiguousarray(grey), cv2.COLOR_BGR2GRAY) if channels >= 3 else grey[:, :, 0]
-    if image.dtype == np.uint16:
-        grey *= np.float32(1.0 / 257.0)
+    if full_scale != 255:
+        grey *= np.float32(255.0 / full_scale)
     return np.ascontiguousarray(grey)
+
+
+def bit_depth_of(pixel_format: str) -> int:
+    """Significant bits per pixel of a GenICam mono pixel format (``Frame.pixel_format``): Mono8 -> 8,
+    Mono10 / Mono10p -> 10, Mono12 / Mono12p -> 12, Mono14 -> 14, Mono16 -> 16. Others raise
+    :class:`BadImage` naming the format."""
+    match = _MONO_FORMAT.fullmatch(pixel_format)
+    if match is None or int(match.group(1)) not in _BIT_DEPTHS:
+        raise BadImage(f"pixel format {pixel_format!r}: expected a mono format, one of Mono8, Mono10, Mono12, "
+                       f"Mono14, Mono16")
+    return int(match.group(1))
 
 
 def seed_dark_blobs(
@@ -145,9 +170,16 @@ def measure_rim(
     max_blur_px: float = 3.0,
     max_saturated_fraction: float = 0.02,
     photometric: bool = True,
+    min_contrast_to_noise: float = DEFAULT_MIN_CONTRAST_TO_NOISE,
+    max_rim_rms_px: float = DEFAULT_MAX_RIM_RMS_PX,
 ) -> RimMeasurement:
     """Run the Sec. 5.3 pipeline on the hole at ``seed`` in ``grey`` (h, w) float32; with ``photometric``
     refine its ellipse on the rim's grey levels (:mod:`monoguide.solver.rim_fit`).
+
+    The rim's contrast must reach ``min_contrast_to_noise`` times the sensor noise sigma around the hole
+    (:func:`noise_sigma`; below it, noise alone makes such blobs) and ``min_contrast`` grey levels, and
+    its sub-pixel edge points must lie on an ellipse within ``max_rim_rms_px`` RMS: a dark patch of noise
+    is no hole.
 
     Raises :class:`HoleCutByBorder`, :class:`ImageSaturated`, :class:`LowContrast` or
     :class:`HoleNotFound` (the dark region is no hole: it runs away, or no ellipse fits it).
@@ -166,6 +198,10 @@ def measure_rim(
     if saturated > max_saturated_fraction:
         raise ImageSaturated(f"{where}: {100 * saturated:.0f} % of the pixels around the rim are saturated "
                              f"(limit {100 * max_saturated_fraction:.0f} %)")
+    noise = noise_sigma(grey, _around(initial, grey.shape))
+    if contrast < min_contrast_to_noise * noise:  # what noise alone makes somewhere in a frame
+        raise HoleNotFound(f"{where}: contrast {contrast:.1f} grey levels is only {contrast / noise:.1f} times the "
+                           f"noise sigma {noise:.1f} (< {min_contrast_to_noise:g}): noise, not a hole")
     if contrast < min_contrast:
         raise LowContrast(f"{where}: contrast {contrast:.1f} grey levels < {min_contrast:.1f}")
     reach = min(max(5.0, 3.0 * max_blur_px + 1.0), 0.7 * float(initial.axes[1]))
@@ -185,6 +221,9 @@ def measure_rim(
     except FeatureNotFound as exc:
         raise HoleNotFound(f"{where}: {exc.message}") from exc
     rms = float(np.sqrt(np.mean(final.distances(points[keep]) ** 2)))
+    if rms > max_rim_rms_px:
+        raise HoleNotFound(f"{where}: the rim is no ellipse (edge points {rms:.2f} px RMS off it > "
+                           f"{max_rim_rms_px:.2f} px)")
     paper = final
     if photometric:
         final, _ = refine_ellipse_photometric(grey, paper, edge_width, SATURATION_GREY)
@@ -193,7 +232,36 @@ def measure_rim(
                           valid_fraction=float(keep.sum()) / len(valid))
 
 
+def noise_sigma(grey: np.ndarray, box: tuple[int, int, int, int]) -> float:
+    """Sensor noise sigma (grey levels) in ``box`` (x0, y0, x1, y1): the robust spread of neighbouring
+    pixel differences, which edges and slow light changes hardly touch; at least 0.5 (quantisation)."""
+    x0, y0, x1, y1 = box
+    patch = grey[y0:y1, x0:x1]
+    if patch.shape[1] < 2:
+        return 0.5
+    spread = 1.4826 * float(np.median(np.abs(np.diff(patch, axis=1)))) / math.sqrt(2.0)
+    return max(spread, 0.5)
+
+
 # --- private helpers -----------------------------------------------------------------------------
+
+
+def _full_scale(image: np.ndarray, bit_depth: int | None) -> int:
+    """The grey value of full scale of ``image`` with ``bit_depth`` significant bits (None: its dtype's)."""
+    if bit_depth is None:
+        return 255 if image.dtype == np.uint8 else 65535
+    if isinstance(bit_depth, bool) or int(bit_depth) != bit_depth or int(bit_depth) not in _BIT_DEPTHS:
+        raise BadImage(f"bit depth {bit_depth!r}: expected an integer 8..16")
+    if image.dtype == np.uint8:
+        if bit_depth != 8:
+            raise BadImage(f"an 8-bit image cannot hold {bit_depth}-bit data")
+        return 255
+    full_scale = 2 ** int(bit_depth) - 1
+    top = int(image.max())
+    if top > full_scale:
+        raise BadImage(f"a value of {top} in a {bit_depth}-bit image (full scale {full_scale}): the data are "
+                       f"not {bit_depth}-bit (MSB-aligned? then they are 16-bit)")
+    return full_scale
 
 
 def _hole_region(grey: np.ndarray, seed: Seed, where: str) -> tuple[np.ndarray, np.ndarray]:
@@ -238,6 +306,14 @@ def _hole_region(grey: np.ndarray, seed: Seed, where: str) -> tuple[np.ndarray, 
     filled = np.zeros_like(region)
     cv2.drawContours(filled, contours, -1, 1, thickness=cv2.FILLED)
     return filled.astype(bool), np.array([x0, y0], dtype=float)
+
+
+def _around(ellipse: Ellipse, shape: tuple[int, ...]) -> tuple[int, int, int, int]:
+    """A box (x0, y0, x1, y1) holding ``ellipse`` and a margin of sheet around it, clipped to ``shape``."""
+    reach = float(ellipse.axes[0]) * 1.5 + 8.0
+    h, w = shape[:2]
+    x0, y0 = max(int(ellipse.center[0] - reach), 0), max(int(ellipse.center[1] - reach), 0)
+    return x0, y0, min(int(ellipse.center[0] + reach) + 2, w), min(int(ellipse.center[1] + reach) + 2, h)
 
 
 def _rim_photometry(grey: np.ndarray, ellipse: Ellipse) -> tuple[float, float]:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -28,7 +28,13 @@ from monoguide.solver.errors import (
     ImageSaturated,
     LowContrast,
 )
-from monoguide.solver.hole_edges import SATURATION_GREY, as_grey, measure_rim, seed_dark_blobs
+from monoguide.solver.hole_edges import (
+    DEFAULT_MIN_CONTRAST_TO_NOISE,
+    SATURATION_GREY,
+    as_grey,
+    measure_rim,
+    seed_dark_blobs,
+)
 from monoguide.solver.rim_fit import refine_ellipse_photometric
 
 DEFAULT_MIN_RADIUS_PX = 6.0
@@ -84,12 +90,13 @@ class RefusedBlob:
 
 @dataclass(frozen=True)
 class HoleScan:
-    """Everything one search saw: the holes (most plausible first), the refused dark blobs, and the
-    fraction of saturated pixels in the search region."""
+    """Everything one search saw: the holes (most plausible first), the refused dark blobs, the fraction
+    of saturated pixels in the search region, and the holes refused for their size (``wrong_size``)."""
 
     holes: list[HoleCandidate]
     refused: list[RefusedBlob]
     saturated_fraction: float
+    wrong_size: list[HoleCandidate] = field(default_factory=list)
 
 
 def find_holes(
@@ -117,16 +124,22 @@ def scan_holes(
     max_blur_px: float = 3.0,
     max_saturated_fraction: float = 0.02,
     photometric: bool = True,
+    min_contrast_to_noise: float = DEFAULT_MIN_CONTRAST_TO_NOISE,
+    bit_depth: int | None = None,
 ) -> HoleScan:
-    """:func:`find_holes` with the refused blobs: the Sec. 5.3 pipeline on each dark blob in ``roi``.
+    """:func:`find_holes` with the refused blobs: the Sec. 5.3 pipeline on each dark blob near ``roi``.
 
-    With ``expected_radius_px`` the blob search is limited to 0.6 .. 1.6 times it; otherwise to
-    ``min_radius_px .. max_radius_px``. A hole is refused when its rim is below ``min_contrast`` grey
-    levels, blurred beyond ``max_blur_px`` sigma, or more than ``max_saturated_fraction`` saturated.
-    ``photometric=False`` stops at the paper's final ellipse instead of refining it on the grey levels.
+    A hole is listed when its centre lies in ``roi``; it is measured on the whole image, so a ROI smaller
+    than the hole still finds it. Its mean radius must lie in 0.6 .. 1.6 times ``expected_radius_px``
+    (without it in ``min_radius_px .. max_radius_px``). A hole is refused when its rim is below
+    ``min_contrast`` grey levels or ``min_contrast_to_noise`` times the noise sigma, blurred beyond
+    ``max_blur_px`` sigma, or more than ``max_saturated_fraction`` saturated. ``photometric=False`` stops
+    at the paper's final ellipse instead of refining it on the grey levels. ``bit_depth``: see
+    :func:`~monoguide.solver.hole_edges.as_grey` (grey levels are on the 0-255 scale whatever the depth).
     """
-    return _scan_grey(as_grey(image), roi, expected_center, expected_radius_px, min_radius_px, max_radius_px,
-                      min_contrast, max_blur_px, max_saturated_fraction, photometric)
+    return _scan_grey(as_grey(image, bit_depth), roi, expected_center, expected_radius_px, min_radius_px,
+                      max_radius_px, min_contrast, max_blur_px, max_saturated_fraction, photometric,
+                      min_contrast_to_noise)
 
 
 def measure_hole(
@@ -141,6 +154,8 @@ def measure_hole(
     max_blur_px: float = 3.0,
     max_saturated_fraction: float = 0.02,
     photometric: bool = True,
+    min_contrast_to_noise: float = DEFAULT_MIN_CONTRAST_TO_NOISE,
+    bit_depth: int | None = None,
 ) -> HoleCandidate:
     """The one hole expected at ``expected_center`` (2,) px with radius ``expected_radius_px``.
 
@@ -150,7 +165,8 @@ def measure_hole(
     none raises :class:`HoleNotFound` (or, when the blob that would have been it was refused,
     :class:`HoleCutByBorder`, :class:`LowContrast` or :class:`ImageSaturated`); two or more raise
     :class:`HoleAmbiguous` rather than guess. The other options are :func:`scan_holes`'s; the
-    photometric refinement runs on the chosen hole only.
+    photometric refinement runs on the chosen hole only. ``bit_depth`` is the camera's
+    (``bit_depth_of(frame.pixel_format)``): a 12-bit image in a uint16 array has full scale 4095.
     """
     ex, ey = float(expected_center[0]), float(expected_center[1])
     r = float(expected_radius_px)
@@ -159,9 +175,9 @@ def measure_hole(
         half = max_offset + 2.0 * r
         roi = (math.floor(ex - half), math.floor(ey - half), int(2 * half) + 2, int(2 * half) + 2)
     where = f"hole expected at ({ex:.1f}, {ey:.1f}) r={r:.1f} px"
-    grey = as_grey(image)
+    grey = as_grey(image, bit_depth)
     scan = _scan_grey(grey, roi, (ex, ey), r, DEFAULT_MIN_RADIUS_PX, DEFAULT_MAX_RADIUS_PX, min_contrast,
-                      max_blur_px, max_saturated_fraction, photometric=False)
+                      max_blur_px, max_saturated_fraction, False, min_contrast_to_noise)
     plausible = [h for h in scan.holes
                  if abs(h.mean_radius / r - 1.0) <= radius_tol and math.hypot(h.center[0] - ex, h.center[1] - ey)
                  <= max_offset]
@@ -182,7 +198,8 @@ def measure_hole(
     if faint is not None and faint[2] < min_contrast:
         raise LowContrast(f"{where}: only a faint dark region at ({faint[0]:.1f}, {faint[1]:.1f}), contrast "
                           f"~{faint[2]:.1f} grey levels < {min_contrast:.1f}")
-    seen = ", ".join(f"({h.center[0]:.1f}, {h.center[1]:.1f}) r={h.mean_radius:.1f}" for h in scan.holes[:5])
+    seen = ", ".join(f"({h.center[0]:.1f}, {h.center[1]:.1f}) r={h.mean_radius:.1f}"
+                     for h in [*scan.holes, *scan.wrong_size][:5])
     raise HoleNotFound(f"{where}: no hole within {max_offset:.0f} px and {100 * radius_tol:.0f} % of the radius"
                        + (f"; seen {seen}" if seen else "; nothing dark of that size in the search region"))
 
@@ -233,6 +250,7 @@ def _scan_grey(
     max_blur_px: float,
     max_saturated_fraction: float,
     photometric: bool,
+    min_contrast_to_noise: float,
 ) -> HoleScan:
     """:func:`scan_holes` on a grey image (h, w) float32 already converted."""
     box = _roi_box(roi, grey.shape)
@@ -245,11 +263,20 @@ def _scan_grey(
     x0, y0, x1, y1 = box
     saturated = float(np.mean(grey[y0:y1, x0:x1] >= SATURATION_GREY))
     holes: list[HoleCandidate] = []
+    wrong_size: list[HoleCandidate] = []
     refused: list[RefusedBlob] = []
-    for seed in seed_dark_blobs(grey, box, r_min, r_max, min_contrast):
+    # holes are selected by their centre but measured whole: seek blobs in the ROI grown by a hole
+    grow = math.ceil(1.6 * r_max) + 16
+    h, w = grey.shape
+    search = (max(x0 - grow, 0), max(y0 - grow, 0), min(x1 + grow, w), min(y1 + grow, h))
+    for seed in seed_dark_blobs(grey, search, r_min, r_max, min_contrast):
+        reach = seed.radius_px + 4.0  # the blob's centroid lies near the hole's centre
+        if not (x0 - reach <= seed.center[0] < x1 + reach and y0 - reach <= seed.center[1] < y1 + reach):
+            continue
         try:
             rim = measure_rim(grey, seed, min_contrast=min_contrast, max_blur_px=max_blur_px,
-                              max_saturated_fraction=max_saturated_fraction, photometric=photometric)
+                              max_saturated_fraction=max_saturated_fraction, photometric=photometric,
+                              min_contrast_to_noise=min_contrast_to_noise)
         except FeatureNotFound as exc:
             refused.append(RefusedBlob(center=seed.center, radius_px=seed.radius_px, error=exc))
             continue
@@ -258,15 +285,16 @@ def _scan_grey(
             continue
         score = _score(rim.rms_px, rim.valid_fraction, rim.contrast, min_contrast, rim.ellipse.mean_radius,
                        c, expected_center, expected_radius_px)
-        holes.append(HoleCandidate(center=c, axes=rim.ellipse.axes, angle_deg=rim.ellipse.angle_deg,
-                                   score=score, contrast=rim.contrast, edge_width_px=rim.edge_width_px,
-                                   rms_px=rim.rms_px, n_edge_points=len(rim.edge_points)))
+        hole = HoleCandidate(center=c, axes=rim.ellipse.axes, angle_deg=rim.ellipse.angle_deg, score=score,
+                             contrast=rim.contrast, edge_width_px=rim.edge_width_px, rms_px=rim.rms_px,
+                             n_edge_points=len(rim.edge_points))
+        (holes if r_min <= hole.mean_radius <= r_max else wrong_size).append(hole)
     holes.sort(key=lambda hole: -hole.score)
     unique: list[HoleCandidate] = []
     for hole in holes:  # one hole seen from two seeds (a rim split by glare) is kept once
         if all(np.hypot(*(hole.center - kept.center)) > _SAME_HOLE_PX for kept in unique):
             unique.append(hole)
-    return HoleScan(holes=unique, refused=refused, saturated_fraction=saturated)
+    return HoleScan(holes=unique, refused=refused, saturated_fraction=saturated, wrong_size=wrong_size)
 
 
 def _refined(grey: np.ndarray, hole: HoleCandidate) -> HoleCandidate:

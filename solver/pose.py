@@ -8,6 +8,10 @@ Estimators (``ESTIMATORS``):
 - ``"paper"``: the paper's estimator, object-space collinearity error with the orthogonality penalty
   over the 12 entries of ``T_s1_w`` (Eq. 13-16), Levenberg-Marquardt, started from Eq. 21.
 
+:func:`solve_pose` (what every caller uses) refuses what it cannot vouch for: fewer observed points
+than ``min_observations`` (default 4), a residual that fails the chi-square test at
+``false_alarm_rate`` (``solver.consistency``), and geometry that leaves a direction unobservable.
+
 Pose perturbations are on the left, in SF1: ``R = exp([w]x) R0``, ``t = t0 + dt``; the covariance is
 over ``(w rad, dt mm)``.
 """
@@ -28,6 +32,13 @@ from monoguide.solver.collinearity import (
     orthogonality,
     orthogonality_jacobian,
 )
+from monoguide.solver.consistency import (
+    DEFAULT_FALSE_ALARM_RATE,
+    MIN_OBSERVATIONS,
+    Consistency,
+    check_consistency,
+    require_redundancy,
+)
 from monoguide.solver.errors import DegenerateGeometry, NoConvergence, PointBehindCamera
 from monoguide.solver.problem import PoseProblem, reprojection
 from monoguide.solver.uncertainty import covariance_from_whitened_jacobian, paper_covariance, whitening
@@ -42,13 +53,16 @@ PAPER_PENALTY = 1e6  # M of Eq. 16, in mm^2 per unit orthogonality defect square
 
 @dataclass
 class PoseResult:
-    """A solved pose. ``covariance`` (6, 6) is over (rotation vector rad, translation mm) of T_s1_w."""
+    """A solved pose. ``covariance`` (6, 6) is over (rotation vector rad, translation mm) of T_s1_w;
+    ``consistency`` is the chi-square test it passed (set by :func:`solve_pose`, None from the bare
+    estimators)."""
 
     T_s1_w: np.ndarray
     covariance: np.ndarray
     residuals_px: np.ndarray  # (m, 2) observed minus predicted, px
     iterations: int
     method: str
+    consistency: Consistency | None = None
 
     @property
     def rms_px(self) -> float:
@@ -63,13 +77,39 @@ class PoseResult:
         return math.sqrt(max(0.0, float(np.trace(self.covariance[3:, 3:]))))
 
 
-def solve_pose(problem: PoseProblem, method: str = "ml", robust: bool = False) -> PoseResult:
-    """Estimate ``T_s1_w`` with the named estimator (see ``ESTIMATORS``)."""
+def solve_pose(
+    problem: PoseProblem,
+    method: str = "ml",
+    robust: bool = False,
+    *,
+    false_alarm_rate: float = DEFAULT_FALSE_ALARM_RATE,
+    min_observations: int = MIN_OBSERVATIONS,
+) -> PoseResult:
+    """Estimate ``T_s1_w`` with the named estimator (see ``ESTIMATORS``) and check it.
+
+    Raises :class:`TooFewObservations` below ``min_observations`` observed points (at least 3, the
+    solvable minimum, where nothing can be checked), :class:`InconsistentMeasurement` when the whitened
+    residual fails the chi-square test at ``false_alarm_rate`` (the fraction of good measurements
+    refused), :class:`DegenerateGeometry` when a direction of the pose is unobservable.
+
+    The test is of the measurement, not of the estimator: its statistic is the whitened residual at the
+    maximum-likelihood fit (the result itself for ``ml``; for ``paper`` and ``robust`` a plain ML
+    refinement started from their answer). So the false-alarm rate holds for every estimator, and the
+    Huber loss can never turn an outlier into an accepted pose.
+    """
     if method not in ESTIMATORS:
         raise ValueError(f"unknown estimator {method!r}; choose one of {sorted(ESTIMATORS)}")
     if robust and method != "ml":
         raise ValueError(f"the robust (Huber) loss belongs to the ml estimator, not {method!r}")
-    return solve_ml(problem, robust=True) if robust else ESTIMATORS[method](problem)
+    if isinstance(min_observations, bool) or not isinstance(min_observations, int) or min_observations < 3:
+        raise ValueError(f"min_observations must be an integer of at least 3, got {min_observations!r}")
+    if not 0.0 < false_alarm_rate < 1.0:
+        raise ValueError(f"false_alarm_rate must lie in (0, 1), got {false_alarm_rate!r}")
+    require_redundancy(problem, min_observations)
+    result = solve_ml(problem, robust=True) if robust else ESTIMATORS[method](problem)
+    T_fit = result.T_s1_w if method == "ml" and not robust else refine_ml(problem, result.T_s1_w).T_s1_w
+    result.consistency = check_consistency(problem, T_fit, false_alarm_rate)
+    return result
 
 
 def solve_ml(problem: PoseProblem, T_init: np.ndarray | None = None, robust: bool = False) -> PoseResult:

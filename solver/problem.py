@@ -10,7 +10,7 @@ from monoguide.solver import frames
 from monoguide.solver.camera import CameraModel
 from monoguide.solver.errors import PointBehindCamera, TooFewObservations, UnknownReference
 
-MIN_OBSERVATIONS = 3  # six unknowns, two equations per observed point (Sec. 3.2)
+MIN_OBSERVATIONS = 3  # solvable: six unknowns, two equations per point (Sec. 3.2); checkable needs 4
 
 
 @dataclass(frozen=True)

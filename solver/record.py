@@ -4,7 +4,7 @@ object in, a :class:`MeasurementRecord` out, and a solve result back to a JSON-r
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -12,65 +12,96 @@ import numpy as np
 from monoguide.solver import frames
 from monoguide.solver.camera import CameraModel
 from monoguide.solver.errors import (
+    MissingKey,
     MonoguideError,
     NonFiniteValue,
     PointBehindCamera,
     RecordError,
+    UnknownKey,
     UnknownReference,
     UnsupportedFormat,
 )
-from monoguide.solver.offset import part_displacement
+from monoguide.solver.offset import Envelope, PartDisplacement, describe_displacement
 from monoguide.solver.pose import PoseResult
 from monoguide.solver.problem import PoseProblem
 
 FORMAT = "monoguide.measurement/1"
+
+# Every key the format defines, per object; anything else is refused with the closest known key.
+REQUIRED_KEYS = ("format", "camera", "points_w", "views", "T_s1_w0", "observations")
+OPTIONAL_KEYS = ("id", "sigma_px", "view_sigma", "T_b_s1", "grasp_point_w", "envelope", "truth")
+# The spec's default centre noise, px: the covariance and the consistency test use it when a record has none.
 DEFAULT_SIGMA_PX = 0.1
+VIEW_KEYS = ("T_s1_si",)
+OBSERVATION_KEYS = ("view", "point", "pixel")
+VIEW_SIGMA_KEYS = ("mm", "deg")
+ENVELOPE_KEYS, ENVELOPE_OPTIONAL_KEYS = ("mm", "deg"), ("axis_mm", "axis_deg")
+TRUTH_KEYS, TRUTH_OPTIONAL_KEYS = ("T_s1_w",), ("base_offset",)
 
 
 @dataclass(frozen=True)
 class MeasurementRecord:
-    """A validated record: its id, the pose problem, and the truth of a synthetic record (or None)."""
+    """A validated record: its id, the pose problem, where the result is judged (grasp point, envelope),
+    the robot base's view of SF1 if known, and the truth of a synthetic record (or None).
+
+    grasp_point_w : (3,) mm in the part frame (the record's, or the featured points' centroid)
+    T_b_s1        : (4, 4) SF1 in the robot base frame, or None (then there is no base offset)
+    """
 
     id: str | None
     problem: PoseProblem
+    grasp_point_w: np.ndarray
+    envelope: Envelope = field(default_factory=Envelope)
+    T_b_s1: np.ndarray | None = None
     truth_T_s1_w: np.ndarray | None = None
+    truth_base_offset: np.ndarray | None = None
+
+    def displacement(self, T_s1_w: np.ndarray) -> PartDisplacement:
+        """How the part at ``T_s1_w`` lies off the reference, at this record's grasp point."""
+        return describe_displacement(T_s1_w, self.problem.T_s1_w0, self.grasp_point_w, self.T_b_s1)
 
 
 def parse_record(data: Any) -> MeasurementRecord:
-    """Validate a decoded JSON object; raise a :class:`RecordError` subclass naming the bad field."""
+    """Validate a decoded JSON object; raise a :class:`RecordError` subclass naming the bad field.
+
+    Strict: a missing required key is :class:`MissingKey`, a key the format does not define (at the top
+    level or in the camera, views, observations, view_sigma, envelope, truth) is :class:`UnknownKey`.
+    The optional keys have the spec's defaults: ``sigma_px`` :data:`DEFAULT_SIGMA_PX`, no view_sigma,
+    the centroid as grasp point, the default envelope, no ``T_b_s1``.
+    """
     if not isinstance(data, dict):
         raise RecordError(f"a record must be a JSON object, got {type(data).__name__}")
     if data.get("format") != FORMAT:
         raise UnsupportedFormat(f"format: expected {FORMAT!r}, got {data.get('format')!r}")
+    _check_keys(data, REQUIRED_KEYS, OPTIONAL_KEYS, "")
     record_id = data.get("id")
     if record_id is not None and not isinstance(record_id, str):
         raise RecordError(f"id: expected a string or null, got {record_id!r}")
-    camera = CameraModel.from_dict(_required(data, "camera"))
-    points_w = _matrix(_required(data, "points_w"), "points_w", columns=3)
-    views = _required(data, "views")
+    camera = CameraModel.from_dict(data["camera"])
+    points_w = _matrix(data["points_w"], "points_w", columns=3)
+    views = data["views"]
     if not isinstance(views, list) or not views:
-        raise RecordError(f"views: expected a non-empty list, got {views!r}")
-    T_s1_si = np.stack([_transform(_field(view, "T_s1_si", f"views[{i}]"), f"views[{i}].T_s1_si")
-                        for i, view in enumerate(views)])
+        raise RecordError(f"views: expected a non-empty list, got {views!r}"[:200])
+    for i, view in enumerate(views):
+        _check_keys(view, VIEW_KEYS, (), f"views[{i}]")
+    T_s1_si = np.stack([_transform(view["T_s1_si"], f"views[{i}].T_s1_si") for i, view in enumerate(views)])
     if not np.allclose(T_s1_si[0], np.eye(4), atol=1e-6):
         raise RecordError("views[0].T_s1_si: must be the identity (SF1 is the frame of the first camera pose)")
-    T_s1_w0 = _transform(_required(data, "T_s1_w0"), "T_s1_w0")
-    view_index, point_index, pixels = _observations(_required(data, "observations"), len(views), len(points_w))
+    T_s1_w0 = _transform(data["T_s1_w0"], "T_s1_w0")
+    view_index, point_index, pixels = _observations(data["observations"], len(views), len(points_w))
     outside = ~camera.in_image(pixels)
     if np.any(outside):
         j = int(np.flatnonzero(outside)[0])
         raise RecordError(
             f"observations[{j}].pixel: {pixels[j].tolist()} lies outside the {camera.width} x {camera.height} image"
         )
-    sigma_px = _positive(data.get("sigma_px", DEFAULT_SIGMA_PX), "sigma_px")
+    sigma_px = DEFAULT_SIGMA_PX if data.get("sigma_px") is None else _positive(data["sigma_px"], "sigma_px")
     view_sigma_mm = view_sigma_deg = 0.0
     if data.get("view_sigma") is not None:
         view_sigma = data["view_sigma"]
-        view_sigma_mm = _positive(_field(view_sigma, "mm", "view_sigma"), "view_sigma.mm", allow_zero=True)
-        view_sigma_deg = _positive(_field(view_sigma, "deg", "view_sigma"), "view_sigma.deg", allow_zero=True)
-    truth = None
-    if data.get("truth") is not None:
-        truth = _transform(_field(data["truth"], "T_s1_w", "truth"), "truth.T_s1_w")
+        _check_keys(view_sigma, VIEW_SIGMA_KEYS, (), "view_sigma")
+        view_sigma_mm = _positive(view_sigma["mm"], "view_sigma.mm", allow_zero=True)
+        view_sigma_deg = _positive(view_sigma["deg"], "view_sigma.deg", allow_zero=True)
     problem = PoseProblem(
         camera, points_w, T_s1_si, view_index, point_index, pixels, T_s1_w0, sigma_px, view_sigma_mm, view_sigma_deg
     )
@@ -81,20 +112,50 @@ def parse_record(data: Any) -> MeasurementRecord:
             f"observations[{j}]: point {int(point_index[j])} lies behind camera {int(view_index[j])} at the "
             f"reference pose T_s1_w0 (z = {depth[j]:.1f} mm): the views or T_s1_w0 are wrong"
         )
-    return MeasurementRecord(record_id, problem, truth)
+    grasp_point_w = points_w.mean(axis=0)
+    if data.get("grasp_point_w") is not None:
+        grasp_point_w = _matrix([data["grasp_point_w"]], "grasp_point_w", columns=3)[0]
+    T_b_s1 = None if data.get("T_b_s1") is None else _transform(data["T_b_s1"], "T_b_s1")
+    truth_T_s1_w = truth_base_offset = None
+    if data.get("truth") is not None:
+        _check_keys(data["truth"], TRUTH_KEYS, TRUTH_OPTIONAL_KEYS, "truth")
+        truth_T_s1_w = _transform(data["truth"]["T_s1_w"], "truth.T_s1_w")
+        if data["truth"].get("base_offset") is not None:
+            truth_base_offset = _transform(data["truth"]["base_offset"], "truth.base_offset")
+    return MeasurementRecord(
+        record_id, problem, grasp_point_w, _envelope(data.get("envelope")), T_b_s1, truth_T_s1_w, truth_base_offset
+    )
 
 
-def result_to_dict(record_id: str | None, result: PoseResult, T_s1_w0: np.ndarray, time_ms: float) -> dict:
-    """The result object of the spec for a solved record."""
+def result_to_dict(record: MeasurementRecord, result: PoseResult, time_ms: float) -> dict:
+    """The result object of the spec (docs/measurement-record.md) for a solved ``record``.
+
+    record  : the parsed record (its id, reference pose, grasp point and ``T_b_s1``)
+    result  : the checked pose from :func:`solver.pose.solve_pose` (its ``consistency`` is reported)
+    time_ms : the solve time to report
+
+    Reports; does not judge: the caller checks the envelope first
+    (``check_envelope(record.displacement(result.T_s1_w), record.envelope)``). ``base_offset`` and
+    ``base_offset_xyzabc`` are null when the record has no ``T_b_s1``.
+    """
+    d = record.displacement(result.T_s1_w)
+    xyzabc = None if d.base_offset is None else [round(v, 6) for v in frames.T_to_kuka_frame(d.base_offset)]
     return {
-        "id": record_id,
+        "id": record.id,
         "status": "ok",
         "T_s1_w": _rounded(result.T_s1_w),
-        "offset": _rounded(part_displacement(result.T_s1_w, T_s1_w0)),
+        "displacement_s1": _rounded(d.displacement_s1),
+        "grasp_point_w": [round(float(v), 6) for v in d.grasp_point_w],
+        "grasp_shift_mm": round(d.grasp_shift_mm, 6),
+        "grasp_shift_s1_mm": [round(float(v), 6) for v in d.grasp_shift_s1],
+        "rotation_deg": round(d.rotation_deg, 6),
+        "base_offset": None if d.base_offset is None else _rounded(d.base_offset),
+        "base_offset_xyzabc": xyzabc,
         "rms_px": round(result.rms_px, 6),
         "covariance": [[float(f"{v:.6g}") for v in row] for row in result.covariance],
         "sigma_rot_deg": round(result.sigma_rot_deg, 6),
         "sigma_trans_mm": round(result.sigma_trans_mm, 6),
+        "consistency": None if result.consistency is None else _consistency(record, result),
         "method": result.method,
         "iterations": result.iterations,
         "time_ms": round(time_ms, 3),
@@ -109,18 +170,35 @@ def error_to_dict(record_id: str | None, error: MonoguideError) -> dict:
 # --- private helpers ----------------------------------------------------------------------------
 
 
-def _required(data: dict, key: str) -> Any:
-    if key not in data:
-        raise RecordError(f"{key}: missing")
-    return data[key]
-
-
-def _field(data: Any, key: str, where: str) -> Any:
+def _check_keys(data: Any, required: tuple[str, ...], optional: tuple[str, ...], where: str) -> None:
+    """``data`` must be an object with every ``required`` key and no key outside ``required + optional``."""
     if not isinstance(data, dict):
-        raise RecordError(f"{where}: expected an object, got {data!r}")
-    if key not in data:
-        raise RecordError(f"{where}.{key}: missing")
-    return data[key]
+        raise RecordError(f"{where or 'record'}: expected an object, got {data!r}"[:200])
+    known = required + optional
+    for key in data:
+        if key not in known:
+            raise UnknownKey.naming(str(key), known, where)
+    for key in required:
+        if key not in data:
+            raise MissingKey(f"{where + '.' if where else ''}{key}: missing")
+
+
+def _consistency(record: MeasurementRecord, result: PoseResult) -> dict:
+    """The chi-square test the result passed, with the centre noise it was held against (the record's
+    ``sigma_px`` or the default, so that a reader sees which)."""
+    return {**result.consistency.as_dict(), "sigma_px": record.problem.sigma_px}
+
+
+def _envelope(value: Any) -> Envelope:
+    if value is None:
+        return Envelope()
+    _check_keys(value, ENVELOPE_KEYS, ENVELOPE_OPTIONAL_KEYS, "envelope")
+    limits = {"max_mm": _positive(value["mm"], "envelope.mm"), "max_deg": _positive(value["deg"], "envelope.deg")}
+    for key in ENVELOPE_OPTIONAL_KEYS:
+        if value.get(key) is not None:
+            row = _matrix([value[key]], f"envelope.{key}", columns=3)[0]
+            limits[key] = tuple(_positive(float(v), f"envelope.{key}[{i}]") for i, v in enumerate(row))
+    return Envelope(**limits)
 
 
 def _number(value: Any, where: str) -> float:
@@ -146,9 +224,8 @@ def _matrix(value: Any, where: str, columns: int, rows: int | None = None) -> np
 
 def _transform(value: Any, where: str) -> np.ndarray:
     """A checked 4x4 transform, its rotation snapped to the nearest orthonormal one (records print
-    matrices to a few decimals)."""
-    T = frames.check_transform(_matrix(value, where, columns=4, rows=4), where)
-    return frames.make_T(frames.orthonormalize(T[:3, :3]), T[:3, 3])
+    matrices to a few decimals: up to ``frames.ORTHONORMAL_TOL`` is rounding, beyond it an error)."""
+    return frames.rigid_transform(_matrix(value, where, columns=4, rows=4), where)
 
 
 def _positive(value: Any, where: str, allow_zero: bool = False) -> float:
@@ -164,7 +241,8 @@ def _observations(value: Any, n_views: int, n_points: int) -> tuple[np.ndarray, 
     views, points, pixels, seen = [], [], [], set()
     for j, obs in enumerate(value):
         where = f"observations[{j}]"
-        view, point = _field(obs, "view", where), _field(obs, "point", where)
+        _check_keys(obs, OBSERVATION_KEYS, (), where)
+        view, point = obs["view"], obs["point"]
         for name, index, count in (("view", view, n_views), ("point", point, n_points)):
             if isinstance(index, bool) or not isinstance(index, int):
                 raise RecordError(f"{where}.{name}: expected an integer index, got {index!r}")
@@ -173,7 +251,7 @@ def _observations(value: Any, n_views: int, n_points: int) -> tuple[np.ndarray, 
         if (view, point) in seen:
             raise UnknownReference(f"{where}: point {point} is observed twice in view {view}")
         seen.add((view, point))
-        pixel = _matrix([_field(obs, "pixel", where)], f"{where}.pixel", columns=2)[0]
+        pixel = _matrix([obs["pixel"]], f"{where}.pixel", columns=2)[0]
         views.append(view)
         points.append(point)
         pixels.append(pixel)

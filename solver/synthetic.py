@@ -71,6 +71,65 @@ def paper_roof_cell(
     return SyntheticCell(camera, PAPER_ROOF_POINTS_W.copy(), T_s1_si, T_s1_w0, observed)
 
 
+def layout_cell(camera: CameraModel, points_w: np.ndarray, T_w0_si: list[np.ndarray]) -> SyntheticCell:
+    """Any layout as a synthetic cell: view i at ``T_w0_si[i]`` (in the reference part's frame, e.g. a
+    planned layout, ``solver.planning.plan_layout``) sees point i."""
+    points_w = np.asarray(points_w, dtype=float).reshape(-1, 3)
+    T_s1_w0 = frames.invert(T_w0_si[0])
+    T_s1_si = np.stack([T_s1_w0 @ T for T in T_w0_si])
+    return SyntheticCell(camera, points_w.copy(), T_s1_si, T_s1_w0, tuple((i, i) for i in range(len(points_w))))
+
+
+def calibrated_cell(
+    camera: CameraModel,
+    points_w: np.ndarray,
+    T_cf_w0: np.ndarray,
+    T_cf_si: list[np.ndarray],
+    points_per_view: list[list[int]],
+) -> SyntheticCell:
+    """A cell as a cell config states it: the reference part ``T_cf_w0`` and the measuring poses
+    ``T_cf_si`` (4, 4) in the cell frame, view i seeing the points ``points_per_view[i]``; expressed in
+    SF1, the frame of the first measuring pose (``T_s1_x = inv(T_cf_si[0]) @ T_cf_x``)."""
+    T_s1_cf = frames.invert(T_cf_si[0])
+    T_s1_si = np.stack([T_s1_cf @ T for T in T_cf_si])
+    observed = tuple((i, int(p)) for i, points in enumerate(points_per_view) for p in points)
+    points_w = np.asarray(points_w, dtype=float).reshape(-1, 3)
+    return SyntheticCell(camera, points_w.copy(), T_s1_si, T_s1_cf @ T_cf_w0, observed)
+
+
+def measurement_record(
+    cell: SyntheticCell,
+    pixels: np.ndarray,
+    sigma_px: float = 0.1,
+    record_id: str | None = None,
+    T_b_s1: np.ndarray | None = None,
+    truth_T_s1_w: np.ndarray | None = None,
+) -> dict:
+    """A ``monoguide.measurement/1`` record (a JSON-ready dict) of ``cell`` observing ``pixels`` (m, 2);
+    with ``truth_T_s1_w`` it carries its truth (and the true base offset when ``T_b_s1`` is given)."""
+    record: dict = {
+        "format": "monoguide.measurement/1",
+        "id": record_id,
+        "camera": cell.camera.as_dict(),
+        "points_w": cell.points_w.tolist(),
+        "views": [{"T_s1_si": T.tolist()} for T in cell.T_s1_si],
+        "T_s1_w0": cell.T_s1_w0.tolist(),
+        "observations": [
+            {"view": int(v), "point": int(p), "pixel": [float(u) for u in pixels[j]]}
+            for j, (v, p) in enumerate(cell.observed)
+        ],
+        "sigma_px": sigma_px,
+    }
+    if T_b_s1 is not None:
+        record["T_b_s1"] = T_b_s1.tolist()
+    if truth_T_s1_w is not None:
+        record["truth"] = {"T_s1_w": truth_T_s1_w.tolist()}
+        if T_b_s1 is not None:  # the motion, in the base frame, that carries the reference part onto the true one
+            T_b_w, T_b_w0 = T_b_s1 @ truth_T_s1_w, T_b_s1 @ cell.T_s1_w0
+            record["truth"]["base_offset"] = (T_b_w @ frames.invert(T_b_w0)).tolist()
+    return record
+
+
 def deviated_part(cell: SyntheticCell, rng: np.random.Generator, max_deg: float, max_mm: float) -> np.ndarray:
     """A part pose ``T_s1_w``: the reference turned about its centroid by a rotation vector with each
     component uniform in +-max_deg, and shifted by a translation uniform in +-max_mm per axis."""

@@ -32,7 +32,10 @@ class SimCamera:
 
     def __init__(self, cell: SimCell, render: RenderSettings | None = None, seed: int | None = None) -> None:
         self.cell = cell
-        self.render = render or RenderSettings()
+        render = render or RenderSettings()
+        if render.focus_distance_mm is None and cell.spec.focus_distance_mm is not None:  # the cell's own lens
+            render = replace(render, focus_distance_mm=cell.spec.focus_distance_mm, aperture_mm=cell.spec.aperture_mm)
+        self.render = render
         self.rng = np.random.default_rng(cell.spec.seed + 1 if seed is None else seed)
         self.settings = CameraSettings()
         self.last_view: RenderedView | None = None

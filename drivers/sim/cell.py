@@ -20,6 +20,7 @@ from monoguide.solver.camera import CameraModel
 from monoguide.solver.frames import compose, invert, make_T, rotvec_to_matrix, transform_points
 
 TARGETS_FORMAT = "monoguide.sim-tracker-targets/1"
+ROBOT_SPEC_FORMAT = "monoguide.sim-robot-spec/1"
 
 
 @dataclass(frozen=True)
@@ -60,6 +61,9 @@ class SimCellSpec:
     benchmarks_cf: dict[str, np.ndarray] = field(default_factory=dict)
     tool_smr_f: np.ndarray | None = None
     targets: tuple[SimTarget, ...] = ()
+    T_w_g: np.ndarray | None = None  # taught grasp (gripper TCP) pose on the part; None: see SimCell.T_w_g
+    focus_distance_mm: float | None = None  # the lens is sharp at this depth (camera z); None: no defocus
+    aperture_mm: float = 0.0  # entrance pupil diameter: defocus grows with it away from the focus plane
 
 
 class SimCell:
@@ -154,6 +158,55 @@ class SimCell:
     def T_s1_w0(self) -> np.ndarray:
         """The reference part in the calibrated SF1."""
         return compose(invert(self.spec.T_cf_si[0]), self.spec.T_cf_w0)
+
+    def set_actual_flange_pose(self, i: int, T_b_f: np.ndarray) -> None:
+        """The robot stands at measuring pose ``i`` with flange pose ``T_b_f``, as a simulated controller in
+        another process reports it (its truth file, :func:`monoguide.drivers.sim.robot_motion.read_truth`)."""
+        self._T_b_f_actual[self._check_pose(i)] = np.array(T_b_f, dtype=float)
+        self.current_pose = i
+
+    # --- the grasp (what the written offset is for) ---------------------------------------------
+
+    @property
+    def T_w_g(self) -> np.ndarray:
+        """The taught grasp pose on the part: given in the spec, else the gripper above the holes' centroid,
+        its z axis pointing down into the part."""
+        if self.spec.T_w_g is not None:
+            return np.array(self.spec.T_w_g, dtype=float)
+        return make_T(np.diag([1.0, -1.0, -1.0]), self.spec.points_w.mean(axis=0))
+
+    def T_b_w_true(self) -> np.ndarray:
+        """The current part in the robot base frame."""
+        return compose(invert(self.spec.T_cf_b), self._T_cf_w)
+
+    def T_b_w0(self) -> np.ndarray:
+        """The reference part (the grasp path was taught on it) in the robot base frame."""
+        return compose(invert(self.spec.T_cf_b), self.spec.T_cf_w0)
+
+    def T_b_g0(self) -> np.ndarray:
+        """The taught grasp pose in the robot base frame (on the reference part)."""
+        return compose(self.T_b_w0(), self.T_w_g)
+
+    def write_robot_spec(self, path: str | os.PathLike[str], part: int = 0) -> Path:
+        """Write what a simulated robot controller needs (taught poses, repeatability, the reference and the
+        current part ``part`` in its base frame) for its process; atomically, it re-reads on change."""
+        path = Path(path)
+        s = self.spec
+        data = {
+            "format": ROBOT_SPEC_FORMAT,
+            "part": part,
+            "seed": s.seed,
+            "repeatability_mm": s.repeatability_mm,
+            "repeatability_deg": s.repeatability_deg,
+            "T_b_f_taught": [self.T_b_f_taught(i).tolist() for i in range(self.n_measuring_poses)],
+            "T_b_w0": self.T_b_w0().tolist(),
+            "T_b_w": self.T_b_w_true().tolist(),
+            "T_b_g0": self.T_b_g0().tolist(),
+        }
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(json.dumps(data, indent=1))
+        os.replace(tmp, path)
+        return path
 
     # --- SMRs for the laser tracker -------------------------------------------------------------
 

@@ -1,8 +1,9 @@
 """A photometric renderer of featured holes with exact ground truth (issue 3).
 
 What the flange camera sees at a measuring pose: sheet metal with circular holes, each projected
-exactly in perspective through the lens distortion of :class:`CameraModel` (Eq. 7-8), then defocus
-blur, uneven lighting, an optional glare spot and part edge, sensor noise and 8-bit quantisation.
+exactly in perspective through the lens distortion of :class:`CameraModel` (Eq. 7-8), then blur (the
+lens's own, plus defocus that grows with the distance from the focus plane: a thin lens), uneven
+lighting, an optional glare spot and part edge, sensor noise and 8-bit quantisation.
 
 Exactness: a pixel's hole coverage is the fraction of its area whose back-projected ray meets the
 sheet plane inside the circle. Pixels far from the rim are decided by their centre; pixels in a band
@@ -25,6 +26,10 @@ from monoguide.solver.camera import CameraModel
 _RIM_POLYGON_POINTS = 256
 _BBOX_MARGIN_PX = 3
 _EDGE_GRID_STEP_PX = 8
+_DEPTH_GRID_STEP_PX = 16
+_MAX_DEFOCUS_CIRCLE_PX = 40.0
+_BLUR_LEVEL_STEP_PX = 0.1  # defocus: the frame is blurred at sigmas this far apart and blended
+_MAX_BLUR_LEVELS = 16
 
 
 @dataclass(frozen=True, eq=False)
@@ -67,9 +72,18 @@ class RenderSettings:
     across the frame along ``light_direction_deg`` (0 = +x, 90 = +y). ``exposure`` multiplies the
     brightness before quantisation, which saturates at 255. ``supersample`` is the number of
     sub-pixels per pixel side in the band around each rim.
+
+    Blur: ``blur_sigma_px`` is the Gaussian sigma of a point in the focus plane (lens and pixel). With
+    ``aperture_mm`` > 0 (the entrance pupil's diameter: focal length / f-number) and
+    ``focus_distance_mm`` (the depth, camera z, in focus) a point at depth ``d`` is also spread over the
+    thin lens's blur circle of diameter ``aperture_mm * f_px * |1/d - 1/focus_distance_mm|`` px, whose
+    sigma (a quarter of the diameter) adds in quadrature (:func:`blur_sigma_at`). The depth of each pixel
+    is that of the sheet plane of the nearest hole. ``aperture_mm`` 0 keeps one blur for the frame.
     """
 
     blur_sigma_px: float = 1.0
+    focus_distance_mm: float | None = None
+    aperture_mm: float = 0.0
     noise_sigma: float = 2.0
     sheet_grey: float = 180.0
     hole_grey: float = 30.0
@@ -92,6 +106,37 @@ class RenderedView:
     image: np.ndarray
     centers_px: np.ndarray
     in_view: np.ndarray
+
+
+def blur_sigma_at(depth_mm: float | np.ndarray, settings: RenderSettings, f_px: float) -> float | np.ndarray:
+    """Gaussian blur sigma (px) of a point at camera depth ``depth_mm`` (scalar or array): the in-focus
+    ``settings.blur_sigma_px`` and the thin-lens defocus of a camera of focal length ``f_px`` px."""
+    circle = defocus_circle_px(depth_mm, settings, f_px)
+    return np.sqrt(settings.blur_sigma_px**2 + (circle / 4.0) ** 2)
+
+
+def defocus_circle_px(depth_mm: float | np.ndarray, settings: RenderSettings, f_px: float) -> float | np.ndarray:
+    """Diameter (px) of the thin lens's blur circle for a point at camera depth ``depth_mm``:
+    ``aperture_mm * f_px * |1/depth - 1/focus_distance_mm|``; 0 without an aperture or a focus distance."""
+    if settings.aperture_mm <= 0.0 or settings.focus_distance_mm is None:
+        return np.zeros_like(depth_mm, dtype=float) if isinstance(depth_mm, np.ndarray) else 0.0
+    with np.errstate(divide="ignore"):
+        inv = 1.0 / np.asarray(depth_mm, dtype=float)
+    circle = settings.aperture_mm * f_px * np.abs(inv - 1.0 / settings.focus_distance_mm)
+    return np.minimum(circle, _MAX_DEFOCUS_CIRCLE_PX) if isinstance(depth_mm, np.ndarray) else float(
+        min(circle, _MAX_DEFOCUS_CIRCLE_PX))
+
+
+def defocus_for_depth_of_field(f_px: float, near_mm: float, far_mm: float,
+                               circle_px: float = 2.0) -> tuple[float, float]:
+    """(focus_distance_mm, aperture_mm) whose blur circle is ``circle_px`` px at both ``near_mm`` and
+    ``far_mm`` and smaller between: the focus distance is their harmonic mean."""
+    if not 0.0 < near_mm < far_mm:
+        raise ValueError(f"depth of field {near_mm} .. {far_mm} mm: need 0 < near < far")
+    if not circle_px > 0.0:
+        raise ValueError(f"circle of confusion {circle_px} px must be positive")
+    half = 0.5 * (1.0 / near_mm - 1.0 / far_mm)
+    return 1.0 / (0.5 * (1.0 / near_mm + 1.0 / far_mm)), circle_px / (f_px * half)
 
 
 def render_view(
@@ -237,9 +282,69 @@ def _radiance(
         edge_cov = _edge_coverage(camera, T_c_w, settings.part_edge)
         reflectance += (np.float32(settings.part_edge.beyond_grey) - reflectance) * edge_cov
     image = reflectance * _light_field(h, w, settings)
-    if settings.blur_sigma_px > 0:
-        image = cv2.GaussianBlur(image, (0, 0), settings.blur_sigma_px, borderType=cv2.BORDER_REPLICATE)
-    return image
+    if defocus_circle_px(1.0, settings, 1.0) == 0.0 or not holes:
+        return _gaussian(image, settings.blur_sigma_px)
+    return _blur_by_depth(image, camera, T_c_w, holes, settings)
+
+
+def _gaussian(image: np.ndarray, sigma: float) -> np.ndarray:
+    if sigma <= 0:
+        return image
+    return cv2.GaussianBlur(image, (0, 0), sigma, borderType=cv2.BORDER_REPLICATE)
+
+
+def _blur_by_depth(image: np.ndarray, camera: CameraModel, T_c_w: np.ndarray, holes: Sequence[HoleSpec],
+                   settings: RenderSettings) -> np.ndarray:
+    """``image`` blurred by the sigma of each pixel's depth: blurred at a ladder of sigmas and blended
+    per pixel with weights linear in sigma^2 (which keeps the blend's variance that of the sigma)."""
+    f_px = math.sqrt(camera.fx * camera.fy)
+    sigma2 = blur_sigma_at(_depth_map(camera, T_c_w, holes), settings, f_px) ** 2
+    lo, hi = float(np.sqrt(sigma2.min())), float(np.sqrt(sigma2.max()))
+    if hi - lo < 0.02:
+        return _gaussian(image, 0.5 * (lo + hi))
+    n = min(max(math.ceil((hi - lo) / _BLUR_LEVEL_STEP_PX) + 1, 2), _MAX_BLUR_LEVELS)
+    levels2 = np.linspace(lo, hi, n) ** 2
+    out = np.zeros_like(image)
+    for k, s2 in enumerate(levels2):
+        weight = np.zeros_like(sigma2)
+        if k > 0:  # rising edge from the level below
+            below = levels2[k - 1]
+            rising = (sigma2 >= below) & (sigma2 <= s2)
+            weight[rising] = (sigma2[rising] - below) / (s2 - below)
+        if k < n - 1:
+            above = levels2[k + 1]
+            falling = (sigma2 > s2) & (sigma2 <= above) if k > 0 else (sigma2 <= above)
+            weight[falling] = np.clip((above - sigma2[falling]) / (above - s2), 0.0, 1.0)
+        if np.any(weight > 0):
+            out += weight * _gaussian(image, math.sqrt(s2))
+    return out
+
+
+def _depth_map(camera: CameraModel, T_c_w: np.ndarray, holes: Sequence[HoleSpec]) -> np.ndarray:
+    """Camera depth (h, w) float32 mm of the sheet seen at each pixel: the plane of the hole whose image
+    is nearest, back-projected on a coarse grid and interpolated. Rays that miss it are far away."""
+    step = _DEPTH_GRID_STEP_PX
+    gu = np.arange(0, camera.width + step, step, dtype=float)
+    gv = np.arange(0, camera.height + step, step, dtype=float)
+    uu, vv = np.meshgrid(gu, gv)
+    nodes = np.stack([uu.ravel(), vv.ravel()], axis=1)
+    xy = camera.undistort_pixels(nodes)
+    rays = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
+    planes = [_HolePlane(T_c_w, hole) for hole in holes]
+    centers = np.array([camera.project(p.center_c[None])[0] if p.center_c[2] > 0 else (np.inf, np.inf)
+                        for p in planes])
+    nearest = np.argmin(np.hypot(nodes[:, None, 0] - centers[None, :, 0], nodes[:, None, 1] - centers[None, :, 1]),
+                        axis=1)
+    depth = np.full(len(nodes), 1e9)
+    for k, plane in enumerate(planes):
+        mine = nearest == k
+        denom = rays[mine] @ plane.normal_c
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lam = float(plane.normal_c @ plane.center_c) / denom
+        depth[mine] = np.where(lam > 0, lam, 1e9)  # rays have z = 1: lam is the depth
+    grid = depth.reshape(uu.shape).astype(np.float32)
+    full = _interp_rows(grid, camera.height, step)
+    return _interp_rows(np.ascontiguousarray(full.T), camera.width, step).T
 
 
 def _hole_center_px(camera: CameraModel, T_c_w: np.ndarray, hole: HoleSpec) -> np.ndarray:

@@ -2,10 +2,13 @@
 
 ``python -m monoguide.drivers.sim.make_cell_config [OUT.toml]`` (stdout without an argument).
 The cell is the paper's (Sec. 5.1-5.2): Table 1 points, Table 2 intrinsics, the calibrated ``T_cf_w0``
-and ``T_b_cf``. The four measuring poses are planned, not copied: the camera looks straight down on
-each featured hole from ``STANDOFF_MM`` and images it a quarter of the image from the edge
-(``solver.planning``), ``T_cf_si = T_cf_w0 @ T_w0_si``. A real cell writes its taught and calibrated
-poses into the same keys.
+and ``T_b_cf``. The four measuring poses are planned, not copied: ``solver.planning.plan_layout`` for
+the constraints of the file's ``[layout]`` (:data:`LAYOUT`) over the paper's deviation envelope, +-50 mm
+and +-5 deg on every axis, which is also the range the simulated parts are drawn from
+(``[sim.deviation]``); ``T_cf_si = T_cf_w0 @ T_w0_si``. ``monoguide plan --layout`` on the written file
+plans the same poses. The simulated robot's taught flange poses follow from them
+(``SimCell.T_b_f_taught = inv(T_cf_b) T_cf_si inv(T_f_c)``). A real cell writes its taught and
+calibrated poses into the same keys.
 """
 
 from __future__ import annotations
@@ -15,11 +18,34 @@ from pathlib import Path
 
 import numpy as np
 
+from monoguide.drivers.sim.hole_renderer import defocus_for_depth_of_field
 from monoguide.solver.camera import PAPER_CAMERA
 from monoguide.solver.frames import compose, invert, make_T, orthonormalize, rotvec_to_matrix
-from monoguide.solver.planning import look_at_poses, quarter_targets
+from monoguide.solver.planning import (
+    DeviationEnvelope,
+    LayoutAssessment,
+    LayoutConstraints,
+    LayoutRequest,
+    plan_layout,
+)
 
-STANDOFF_MM = 650.0
+# [layout]: what the measuring poses are planned for. The depth of field 450-900 mm is that of the 8.5 mm
+# lens focused at 2 near far / (near + far) = 600 mm with its blur circle DEFOCUS_CIRCLE_PX wide at both ends
+# (an entrance pupil of 1.5 mm, about f/5.6): [sim] focus_distance_mm and aperture_mm, so that the simulated
+# camera blurs the holes as that lens would. Over the whole envelope the line of sight stays within 60 deg
+# of the sheet's normal (a hole seen at half its width, at worst): the detector must hold that.
+LAYOUT = LayoutConstraints(
+    standoff_mm=(400.0, 1000.0),
+    max_view_angle_deg=30.0,
+    margin_px=100.0,
+    depth_of_field_mm=(450.0, 900.0),
+    max_view_angle_envelope_deg=60.0,
+)
+ENVELOPE = DeviationEnvelope(translation_mm=(50.0, 50.0, 50.0), rotation_deg=(5.0, 5.0, 5.0))
+DEFOCUS_CIRCLE_PX = 2.0
+SIGMA_PX = 0.1
+REPEATABILITY_MM, REPEATABILITY_DEG = 0.05, 0.01
+POINT_NAMES = ("P1", "P2", "P3", "P4")
 POINTS_W = np.array([[0.0, 0.0, 0.0], [1218.078, 0.0, 0.0], [1218.028, 2058.764, 0.0], [-1.017, 2059.039, -2.677]])
 T_CF_W0_PAPER = np.array([
     [-0.9998, -0.0131, -0.0120, -1381.259],
@@ -43,33 +69,55 @@ T_CF_TRACKER_SIM = make_T(rotvec_to_matrix(np.radians([0.0, 0.0, 35.0])), np.arr
 TARGET_POINTS_T = np.array([[0.0, 0.0, 0.0], [300.0, 0.0, 0.0], [300.0, 200.0, 0.0], [0.0, 200.0, 0.0]])
 
 
+def layout_request() -> LayoutRequest:
+    """What the measuring poses are planned for: the request ``monoguide plan --layout`` reads from the
+    written file (``[part]``, ``[camera.intrinsics]``, ``[layout]``)."""
+    return LayoutRequest(
+        camera=PAPER_CAMERA,
+        points_w=POINTS_W,
+        envelope=ENVELOPE,
+        constraints=LAYOUT,
+        sigma_px=SIGMA_PX,
+        repeatability_mm=REPEATABILITY_MM,
+        repeatability_deg=REPEATABILITY_DEG,
+        point_names=POINT_NAMES,
+    )
+
+
 def paper_cell_poses() -> dict[str, object]:
-    """The matrices of the simulated roof cell: reference, robot base, measuring poses, targets."""
+    """The matrices of the simulated roof cell: reference, robot base, measuring poses, targets, and the
+    plan (:class:`~monoguide.solver.planning.LayoutAssessment`) the measuring poses come from."""
     T_cf_w0 = _exact(T_CF_W0_PAPER)
     T_cf_b = invert(_exact(T_B_CF_PAPER))
-    targets_px = quarter_targets(PAPER_CAMERA, POINTS_W)
-    T_w0_s = look_at_poses(POINTS_W, PAPER_CAMERA, STANDOFF_MM, targets_px)
-    T_cf_s = [compose(T_cf_w0, T) for T in T_w0_s]
-    # one calibration target per measuring pose, centred on the optical axis at the standoff, lying flat
+    plan = plan_layout(layout_request())
+    T_cf_s = [compose(T_cf_w0, T) for T in plan.T_w0_si]
+    # one calibration target per measuring pose, centred on the optical axis at its hole's depth, lying flat
     # like the part (the paper's Fig. 2)
     centre_t = TARGET_POINTS_T.mean(axis=0)
     T_cf_t = []
-    for T in T_cf_s:
-        on_axis_cf = (T @ np.array([0.0, 0.0, STANDOFF_MM, 1.0]))[:3]
+    for T, depth in zip(T_cf_s, plan.depth_mm.mean(axis=1), strict=True):
+        on_axis_cf = (T @ np.array([0.0, 0.0, depth, 1.0]))[:3]
         R = T_cf_w0[:3, :3]
         T_cf_t.append(make_T(R, on_axis_cf - R @ centre_t))
-    return {"T_cf_w0": T_cf_w0, "T_cf_b": T_cf_b, "T_cf_s": T_cf_s, "T_cf_t": T_cf_t, "targets_px": targets_px}
+    return {"T_cf_w0": T_cf_w0, "T_cf_b": T_cf_b, "T_cf_s": T_cf_s, "T_cf_t": T_cf_t, "plan": plan}
 
 
 def cell_config_toml() -> str:
     """The text of ``config/sim-cell.toml``."""
     m = paper_cell_poses()
+    plan: LayoutAssessment = m["plan"]
+    focus_mm, aperture_mm = defocus_for_depth_of_field(PAPER_CAMERA.fx, *LAYOUT.depth_of_field_mm, DEFOCUS_CIRCLE_PX)
     cam = PAPER_CAMERA
+    s, r = plan.sigmas, plan.sigmas_with_repeatability
     lines = [
         "# The simulated paper roof cell (Sec. 5 of the paper). Generated by",
         "#   python -m monoguide.drivers.sim.make_cell_config config/sim-cell.toml",
-        f"# Measuring poses: camera looking straight down on each hole from {STANDOFF_MM:g} mm, the hole imaged",
-        "# a quarter of the image from the edge. Edit the generator, not this file.",
+        "# Measuring poses planned by `monoguide plan --layout` for [layout] over +-50 mm / +-5 deg on every axis:",
+        f"# predicted sigma {s.sigma_rot_deg:.4f} deg / {s.sigma_trans_mm:.3f} mm at the grasp point "
+        f"({s.sigma_origin_mm:.3f} mm at the part origin) for {SIGMA_PX:g} px,",
+        f"# {r.sigma_rot_deg:.4f} deg / {r.sigma_trans_mm:.3f} mm with the robot's repeatability; every hole "
+        f">= {plan.margin_px_min:.0f} px inside the image,",
+        f"# depth {plan.depth_mm_min:.0f}-{plan.depth_mm_max:.0f} mm. Edit the generator, not this file.",
         "",
         "[cell]",
         'name = "paper roof cell (simulated)"',
@@ -86,18 +134,21 @@ def cell_config_toml() -> str:
         "",
         "[part]  # Table 1, the roof's featured holes in WF",
         "hole_radius_mm = 5.0",
-        'point_names = ["P1", "P2", "P3", "P4"]',
+        "point_names = [" + ", ".join(f'"{name}"' for name in POINT_NAMES) + "]",
         f"points_w = {_rows(POINTS_W)}",
         "",
         "[reference]  # T_cf_w0 and inv(T_b_cf) of Sec. 5.2 (R[1, 1] of T_b_cf sign-corrected), orthonormalised",
         f"T_cf_w0 = {_matrix(m['T_cf_w0'])}",
         f"T_cf_b = {_matrix(m['T_cf_b'])}",
     ]
-    for i, (T, px) in enumerate(zip(m["T_cf_s"], m["targets_px"], strict=True)):
+    lines += _layout_lines()
+    for i, T in enumerate(m["T_cf_s"]):
+        u, v = plan.pixels[i]
         lines += [
             "",
             "[[measuring_poses]]",
-            f'name = "S{i + 1}"  # P{i + 1} imaged at ({px[0]:.1f}, {px[1]:.1f}) px',
+            f'name = "S{i + 1}"  # {POINT_NAMES[i]} at {plan.standoff_mm[i]:.1f} mm, line of sight '
+            f"{plan.view_angle_deg[i]:.1f} deg off the normal, imaged at ({u:.1f}, {v:.1f}) px",
             f"points = [{i}]",
             f"T_cf_si = {_matrix(T)}",
         ]
@@ -108,19 +159,32 @@ def cell_config_toml() -> str:
         "baud = 115200",
         "timeout_s = 2.0",
         "",
+        "[robot]  # docs/robot-interface.md",
+        'backend = "sim-ur"  # or "sim-kuka"; a real cell: "ur" or "kuka" with the controller\'s host',
+        'host = "127.0.0.1"  # where the simulated controller listens (sim-cell writes it into its state file)',
+        "port = 30004",
+        "connect_timeout_s = 3.0",
+        "move_timeout_s = 10.0",
+        "ack_timeout_s = 2.0",
+        "pose_tolerance_mm = 1.0",
+        "pose_tolerance_deg = 0.1",
+        "sim_move_time_s = 0.5",
+        "",
         "[sim]",
         "seed = 20240601",
         "repeatability_mm = 0.05",
         "repeatability_deg = 0.01",
         "tracker_noise_mm = 0.025",
         "exposure_us_nominal = 8000.0",
+        f"focus_distance_mm = {focus_mm:.1f}",
+        f"aperture_mm = {aperture_mm:.4f}  # blur circle {DEFOCUS_CIRCLE_PX:g} px at the depth of field's ends",
         "tool_smr_f = [0.0, 0.0, 250.0]",
         f"T_f_c = {_matrix(T_F_C_SIM)}",
         f"T_cf_tracker = {_matrix(T_CF_TRACKER_SIM)}",
         "",
-        "[sim.deviation]  # +- per axis of the part frame; rotation about the holes' centroid",
-        "translation_mm = [50.0, 50.0, 5.0]",
-        "rotation_deg = [0.5, 0.5, 2.0]",
+        "[sim.deviation]  # +- per axis of the part frame; rotation about the holes' centroid (the paper's range)",
+        f"translation_mm = {_numbers(ENVELOPE.translation_mm)}",
+        f"rotation_deg = {_numbers(ENVELOPE.rotation_deg)}",
         "",
         "[sim.benchmarks]  # the three SMR nests that define the cell frame",
         "B1 = [0.0, 0.0, 0.0]",
@@ -155,6 +219,28 @@ def _exact(T: np.ndarray) -> np.ndarray:
     out = T.copy()
     out[:3, :3] = orthonormalize(T[:3, :3])
     return out
+
+
+def _numbers(values) -> str:
+    return "[" + ", ".join(f"{float(v):.1f}" for v in values) + "]"
+
+
+def _layout_lines() -> list[str]:
+    c = LAYOUT
+    return [
+        "",
+        "[layout]  # what the measuring poses are planned for (monoguide plan --layout; docs/planning.md)",
+        f"standoff_mm = {_numbers(c.standoff_mm)}",
+        f"max_view_angle_deg = {c.max_view_angle_deg:.1f}",
+        f"max_view_angle_envelope_deg = {c.max_view_angle_envelope_deg:.1f}",
+        f"margin_px = {c.margin_px:.1f}",
+        f"depth_of_field_mm = {_numbers(c.depth_of_field_mm)}  # the lens focused at [sim] focus_distance_mm",
+        f"sigma_px = {SIGMA_PX}",
+        f"repeatability_mm = {REPEATABILITY_MM}",
+        f"repeatability_deg = {REPEATABILITY_DEG}",
+        f"envelope_translation_mm = {_numbers(ENVELOPE.translation_mm)}",
+        f"envelope_rotation_deg = {_numbers(ENVELOPE.rotation_deg)}",
+    ]
 
 
 def _rows(a: np.ndarray) -> str:

@@ -20,6 +20,7 @@ from typer.testing import CliRunner
 
 from monoguide.daemon.assembly import build_sim_cell
 from monoguide.daemon.cli import app
+from monoguide.daemon.cmd_probe import PROBES, Device
 from monoguide.daemon.config import load_cell_config
 
 CONFIG_DIR = Path(__file__).parents[2] / "config"
@@ -76,10 +77,39 @@ def test_probe_absent_camera_fails_clearly(tmp_path: Path) -> None:
     assert "DEVICE_NOT_FOUND" in result.output and "'77'" in result.output
 
 
-def test_probe_bad_config_is_exit_2(tmp_path: Path) -> None:
+def test_probe_bad_config_is_exit_2_on_standard_error(tmp_path: Path) -> None:
     (tmp_path / "cell.toml").write_text("[cell]\n")
     result = runner.invoke(app, ["probe", "camera", "--config", str(tmp_path / "cell.toml")])
-    assert result.exit_code == 2 and "CONFIG_INVALID" in result.output
+    assert result.exit_code == 2 and result.stdout == ""
+    assert "config error CONFIG_MISSING_KEY (PLC 532)" in result.stderr and "[cell].name: missing" in result.stderr
+
+
+def test_probe_names_a_misspelt_key_with_its_correction(tmp_path: Path) -> None:
+    text = _viky_config().replace("grab_timeout_s = 3.0", "grab_timout_s = 3.0")
+    (tmp_path / "cell.toml").write_text(text)
+    result = runner.invoke(app, ["probe", "camera", "--config", str(tmp_path / "cell.toml")])
+    assert result.exit_code == 2 and result.stdout == ""
+    assert "CONFIG_UNKNOWN_KEY (PLC 530)" in result.stderr
+    assert "[camera].grab_timout_s: unknown key; did you mean 'grab_timeout_s'?" in result.stderr
+
+
+def test_probe_piped_prints_whole_plain_lines_and_errors_apart(tmp_path: Path) -> None:
+    """Through a real pipe (no terminal): one result a line, however long, no colour codes; errors on stderr."""
+    out = tmp_path / ("a-folder-name-long-enough-to-pass-any-terminal-width-" * 3) / "frame.png"
+    out.parent.mkdir()
+    cmd = [sys.executable, "-m", "monoguide.daemon.cli", "probe", "camera", "--config", str(SIM_CELL), "--out"]
+    env = {**os.environ, "COLUMNS": "40"}
+    result = subprocess.run([*cmd, str(out)], capture_output=True, text=True, timeout=120, env=env)
+    assert result.returncode == 0 and result.stderr == "", result.stderr
+    assert result.stdout.splitlines()[-1] == f"saved {out}"
+    assert "\x1b[" not in result.stdout
+    bad = subprocess.run([*cmd, str(tmp_path / "frame.xyz")], capture_output=True, text=True, timeout=120, env=env)
+    assert bad.returncode == 2 and bad.stdout == ""
+    assert len(bad.stderr.splitlines()) == 1 and "\x1b[" not in bad.stderr and "CONFIG_INVALID" in bad.stderr
+
+
+def test_every_device_kind_has_a_probe() -> None:
+    assert set(PROBES) == set(Device)
 
 
 def test_probe_tracker_without_a_running_sim_cell(tmp_path: Path) -> None:

@@ -12,6 +12,8 @@ from monoguide.drivers.sim.hole_renderer import (
     HoleSpec,
     PartEdge,
     RenderSettings,
+    blur_sigma_at,
+    defocus_for_depth_of_field,
     hole_coverage,
     render_expected_image,
     render_view,
@@ -139,3 +141,64 @@ def test_full_frame_renders_well_under_a_second():
                        clutter=scatter_clutter(holes[0], np.random.default_rng(1)))
     assert time.perf_counter() - start < 1.0
     assert view.image.shape == (2058, 2456) and view.in_view.all()
+
+
+def _rim_sigma(view_image: np.ndarray, center_px: np.ndarray, radius_px: float) -> float:
+    """The Gaussian sigma of the rendered rim, fitted to its grey levels (pixel area adds 1/12 px^2)."""
+    from monoguide.solver.ellipse import Ellipse
+    from monoguide.solver.holes import measure_hole
+    from monoguide.solver.rim_fit import refine_ellipse_photometric
+
+    paper = measure_hole(np.round(view_image * 257.0).astype(np.uint16), center_px, radius_px, photometric=False)
+    start = Ellipse(center=paper.center, axes=paper.axes, angle_deg=paper.angle_deg)
+    _, sigma = refine_ellipse_photometric(view_image.astype(np.float32), start, paper.edge_width_px)
+    return math.sqrt(max(sigma**2 - 1.0 / 12.0, 0.0))
+
+
+@pytest.mark.parametrize("depth_mm", [450.0, 600.0, 900.0])
+def test_defocus_grows_with_the_distance_from_the_focus_plane(depth_mm):
+    focus, aperture = defocus_for_depth_of_field(PINHOLE.fx, 450.0, 900.0, circle_px=8.0)
+    assert focus == pytest.approx(600.0)  # the harmonic mean of 450 and 900
+    settings = RenderSettings(noise_sigma=0.0, light_gradient=0.0, blur_sigma_px=0.8,
+                              focus_distance_mm=focus, aperture_mm=aperture)
+    T = frames.make_T(np.diag([1.0, -1.0, -1.0]), np.array([0.0, 0.0, depth_mm]))
+    hole = HoleSpec(np.zeros(3), 6.0 * depth_mm / 650.0)  # the same size in the image at every depth
+    image = render_expected_image(PINHOLE, T, [hole], settings)
+    truth = PINHOLE.project(T[:3, 3][None])[0]
+    expected = 0.8 if depth_mm == 600.0 else math.hypot(0.8, 8.0 / 4.0)  # circle 8 px at both ends
+    assert blur_sigma_at(depth_mm, settings, PINHOLE.fx) == pytest.approx(expected, rel=1e-9)
+    assert _rim_sigma(image, truth, 6.0 * PINHOLE.fx / 650.0) == pytest.approx(expected, rel=0.05)
+
+
+def test_a_tilted_sheet_is_sharp_at_the_focus_depth_and_blurred_away_from_it():
+    T = _tilted(35.0, axis_deg=0.0)  # the sheet runs from near (top of the image) to far
+    camera = replace(PINHOLE, width=900, height=700, cx=450.0, cy=350.0)
+    pixels = [(450.0, 120.0), (450.0, 580.0)]
+    holes = [HoleSpec(_on_sheet(camera, T, p), 5.0) for p in pixels]
+    depths = [float((T[:3, :3] @ h.center_w + T[:3, 3])[2]) for h in holes]
+    assert depths[1] - depths[0] > 60.0 or depths[0] - depths[1] > 60.0
+    settings = RenderSettings(noise_sigma=0.0, light_gradient=0.0, blur_sigma_px=0.7,
+                              focus_distance_mm=depths[0], aperture_mm=10.0)
+    image = render_expected_image(camera, T, holes, settings)
+    for hole, depth in zip(holes, depths, strict=True):
+        truth = camera.project((T[:3, :3] @ hole.center_w + T[:3, 3])[None])[0]
+        radius = 5.0 * camera.fx / depth * math.sqrt(math.cos(math.radians(35.0)))
+        expected = float(blur_sigma_at(depth, settings, camera.fx))
+        assert _rim_sigma(image, truth, radius) == pytest.approx(expected, rel=0.08)
+    assert float(blur_sigma_at(depths[1], settings, camera.fx)) > 1.5 * 0.7
+
+
+def test_without_an_aperture_the_blur_is_the_same_everywhere():
+    holes = [HoleSpec(np.array([0.0, 0.0, 0.0]), 5.0)]
+    plain = render_expected_image(PINHOLE, LOOK_DOWN, holes, RenderSettings())
+    unfocused = render_expected_image(PINHOLE, LOOK_DOWN, holes, RenderSettings(focus_distance_mm=300.0))
+    np.testing.assert_array_equal(plain, unfocused)
+    with pytest.raises(ValueError, match="near < far"):
+        defocus_for_depth_of_field(PINHOLE.fx, 900.0, 450.0)
+
+
+def _on_sheet(camera: CameraModel, T_c_w: np.ndarray, pixel) -> np.ndarray:
+    ray = camera.pixels_to_rays(np.asarray(pixel, float)[None])[0]
+    T_w_c = frames.invert(T_c_w)
+    origin, direction = T_w_c[:3, 3], T_w_c[:3, :3] @ ray
+    return origin - origin[2] / direction[2] * direction

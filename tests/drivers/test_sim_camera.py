@@ -118,3 +118,33 @@ def test_hole_out_of_view_when_the_part_is_far_off() -> None:
     cam.open()
     cam.grab(1.0)
     assert cam.last_view is not None and not cam.last_view.in_view[0]
+
+
+@pytest.mark.parametrize("focus_factor", [1.0, 0.75])
+def test_defocus_grows_away_from_the_cell_lens_focus(focus_factor: float) -> None:
+    from monoguide.drivers.sim.hole_renderer import blur_sigma_at
+    from monoguide.solver.ellipse import Ellipse
+    from monoguide.solver.holes import measure_hole
+    from monoguide.solver.rim_fit import refine_ellipse_photometric
+
+    probe = SimCell(SPEC)
+    probe.reference_part()
+    probe.move_to_measuring_pose(0)
+    depth = float(transform_points(probe.T_c_w_true(0), SPEC.points_w[:1])[0, 2])
+    cell = SimCell(dataclasses.replace(SPEC, focus_distance_mm=focus_factor * depth, aperture_mm=6.0))
+    cell.reference_part()
+    cell.move_to_measuring_pose(0)
+    cam = SimCamera(cell)
+    cam.open()
+    cam.configure(CameraSettings(exposure_us=8000.0))
+    image = cam.grab(1.0).image
+    truth = truth_px(cell, 0)
+    r_px = SPEC.hole_radius_mm * SPEC.camera.fx / depth
+    paper = measure_hole(image, truth, r_px, photometric=False, max_offset_px=10.0)
+    start = Ellipse(center=paper.center, axes=paper.axes, angle_deg=paper.angle_deg)
+    _, sigma = refine_ellipse_photometric(image.astype(np.float32), start, paper.edge_width_px)
+    expected = float(blur_sigma_at(depth, cam.render, SPEC.camera.fx))
+    assert cam.render.focus_distance_mm == pytest.approx(focus_factor * depth)
+    assert np.sqrt(sigma**2 - 1.0 / 12.0) == pytest.approx(expected, rel=0.12)
+    if focus_factor != 1.0:
+        assert expected > 2.0 * cam.render.blur_sigma_px  # clearly out of focus

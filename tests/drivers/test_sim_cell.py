@@ -6,18 +6,22 @@ import dataclasses
 import json
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
 from monoguide.daemon.assembly import sim_cell_spec
 from monoguide.daemon.config import load_cell_config
+from monoguide.drivers.sim.camera import SimCamera
 from monoguide.drivers.sim.cell import SimCell
+from monoguide.drivers.sim.hole_renderer import RenderSettings
+from monoguide.drivers.sim.make_cell_config import paper_cell_poses
 from monoguide.drivers.sim.tracker import load_targets
 from monoguide.solver.frames import invert, matrix_to_rotvec, pose_difference, transform_points
-from monoguide.solver.planning import quarter_targets
 
 CONFIG = load_cell_config(Path(__file__).parents[2] / "config" / "sim-cell.toml")
 SPEC = sim_cell_spec(CONFIG)
+PLAN = paper_cell_poses()["plan"]  # the layout the config was generated from (solver.planning.plan_layout)
 
 
 def test_same_seed_same_truth() -> None:
@@ -55,13 +59,12 @@ def test_robot_stops_within_its_repeatability() -> None:
 
 def test_perfect_robot_sees_each_hole_where_the_plan_puts_it() -> None:
     cell = SimCell(dataclasses.replace(SPEC, repeatability_mm=0.0, repeatability_deg=0.0))
-    targets = quarter_targets(SPEC.camera, SPEC.points_w)
     for i, pose in enumerate(CONFIG.measuring_poses):
         cell.move_to_measuring_pose(i)
         np.testing.assert_allclose(cell.actual_camera_pose(), pose.T_cf_si, atol=1e-9)
-        p_c = transform_points(invert(pose.T_cf_si) @ SPEC.T_cf_w0, SPEC.points_w[i][None])
-        assert p_c[0, 2] == pytest.approx(650.0, abs=1e-6)
-        np.testing.assert_allclose(SPEC.camera.project(p_c)[0], targets[i], atol=1e-6)
+        p_c = transform_points(invert(cell.actual_camera_pose()) @ SPEC.T_cf_w0, SPEC.points_w[i][None])
+        assert np.linalg.norm(p_c[0]) == pytest.approx(PLAN.standoff_mm[i], abs=1e-6)
+        np.testing.assert_allclose(SPEC.camera.project(p_c)[0], PLAN.pixels[i], atol=1e-6)
 
 
 def test_smr_positions_and_the_tracker_frame(tmp_path: Path) -> None:
@@ -81,10 +84,63 @@ def test_smr_positions_and_the_tracker_frame(tmp_path: Path) -> None:
     assert json.loads((tmp_path / "t.json").read_text())["format"] == "monoguide.sim-tracker-targets/1"
 
 
-def test_truth_of_a_measurement_is_in_the_calibrated_sf1() -> None:
+def test_truth_of_the_reference_part_in_sf1_is_the_planned_view() -> None:
+    """Ground truth from the plan the config was generated with: at S1 the camera sees P1 from the planned
+    standoff at the planned pixel (the config's comment on S1)."""
     cell = SimCell(SPEC)
-    cell.new_part()
-    expected = invert(CONFIG.measuring_poses[0].T_cf_si) @ cell.T_cf_w_true
-    np.testing.assert_allclose(cell.T_s1_w_true(), expected)
+    cell.reference_part()
+    p1_s1 = transform_points(cell.T_s1_w_true(), SPEC.points_w[:1])[0]
+    assert np.linalg.norm(p1_s1) == pytest.approx(PLAN.standoff_mm[0], abs=1e-6)
+    np.testing.assert_allclose(SPEC.camera.project(p1_s1[None])[0], PLAN.pixels[0], atol=1e-6)
+    np.testing.assert_allclose(cell.T_s1_w_true(), cell.T_s1_w0(), atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", [11, 12, 13])
+def test_truth_of_a_deviated_part_in_sf1_is_where_the_camera_at_s1_sees_its_hole(seed: int) -> None:
+    """T_s1_w_true checked against the rendered image: the robot (perfect) stands at S1 through its own
+    chain T_cf_b T_b_f T_f_c, the renderer draws the part there, and the hole's centre is measured on the
+    pixels (the dark blob's centroid), independently of the formula T_s1_w_true uses."""
+    cell = SimCell(dataclasses.replace(SPEC, repeatability_mm=0.0, repeatability_deg=0.0))
+    cell.new_part(np.random.default_rng(seed))
+    cell.move_to_measuring_pose(0)
+    camera = SimCamera(cell, RenderSettings(noise_sigma=1.0, light_gradient=0.0), seed=seed)
+    camera.open()
+    image = camera.grab(5.0).image.astype(float)
+    measured = _dark_blob_centroid(image)
+    # the measuring pose looks at the hole obliquely: the dark blob's centroid is the centroid of the rim's
+    # image (an ellipse, whose centroid is not the image of the hole's centre), so that is what it is checked on
+    predicted = _rim_image_centroid(cell.T_s1_w_true(), SPEC.points_w[0], SPEC.hole_radius_mm)
+    np.testing.assert_allclose(measured, predicted, atol=0.05)
+    reference = _rim_image_centroid(cell.T_s1_w0(), SPEC.points_w[0], SPEC.hole_radius_mm)
+    assert np.linalg.norm(measured - reference) > 20.0, "the part did not move: the check above proves nothing"
+
+
+def test_a_measuring_pose_that_does_not_exist_is_refused() -> None:
     with pytest.raises(ValueError, match="measuring pose 9"):
-        cell.move_to_measuring_pose(9)
+        SimCell(SPEC).move_to_measuring_pose(9)
+
+
+def _dark_blob_centroid(image: np.ndarray) -> np.ndarray:
+    """The hole's centre as the centroid of its darkness: the one dark blob in the frame, weighted by how
+    much of each pixel is hole (sheet grey 180, hole grey 30 with no light gradient)."""
+    mask = (image < 105).astype(np.uint8)
+    count, _labels, stats, _ = cv2.connectedComponentsWithStats(mask)
+    big = [k for k in range(1, count) if stats[k, cv2.CC_STAT_AREA] > 50]
+    assert len(big) == 1, f"expected one hole in view at S1, found {len(big)}"
+    x, y, w, h = (int(v) for v in stats[big[0], :4])
+    pad = 6
+    window = image[y - pad : y + h + pad, x - pad : x + w + pad]
+    weight = np.clip((180.0 - window) / 150.0, 0.0, 1.0)
+    rows, cols = np.mgrid[y - pad : y + h + pad, x - pad : x + w + pad]
+    return np.array([np.sum(weight * cols), np.sum(weight * rows)]) / np.sum(weight)
+
+
+def _rim_image_centroid(T_c_w: np.ndarray, centre_w: np.ndarray, radius_mm: float) -> np.ndarray:
+    """Area centroid (px) of the image of a hole's rim (a circle in the part's x-y plane), from the rim's
+    projection at 2000 points (the shoelace formula)."""
+    t = np.linspace(0.0, 2.0 * np.pi, 2000, endpoint=False)
+    rim_w = centre_w + radius_mm * np.column_stack([np.cos(t), np.sin(t), np.zeros_like(t)])
+    x, y = SPEC.camera.project(transform_points(T_c_w, rim_w)).T
+    cross = x * np.roll(y, -1) - np.roll(x, -1) * y
+    area = cross.sum() / 2.0
+    return np.array([((x + np.roll(x, -1)) * cross).sum(), ((y + np.roll(y, -1)) * cross).sum()]) / (6.0 * area)

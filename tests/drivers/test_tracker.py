@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import logging
+import re
 import select
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -17,9 +19,17 @@ import serial
 
 from monoguide.daemon.assembly import build_sim_cell
 from monoguide.daemon.config import load_cell_config
-from monoguide.drivers.errors import DeviceDisconnected, DeviceFault, DeviceNotFound, DeviceProtocolError, DeviceTimeout
+from monoguide.drivers.errors import (
+    DeviceBusy,
+    DeviceDisconnected,
+    DeviceFault,
+    DeviceNotFound,
+    DeviceProtocolError,
+    DeviceRequestInvalid,
+    DeviceTimeout,
+)
 from monoguide.drivers.sim.cell import SimCell
-from monoguide.drivers.tracker import LaserTracker, SerialLaserTracker
+from monoguide.drivers.tracker import LaserTracker, SerialLaserTracker, SerialLineChannel
 
 SIM_CELL = Path(__file__).parents[2] / "config" / "sim-cell.toml"
 NOISE_3D_MM = 0.025
@@ -205,3 +215,87 @@ def test_absent_port_is_not_found(tmp_path: Path) -> None:
 
 def _dropped(caplog: pytest.LogCaptureFixture) -> list[str]:
     return [r.getMessage() for r in caplog.records if "dropping late reply" in r.getMessage()]
+
+
+# --- one client per port, one exchange at a time, every wait bounded (issue 7, item 10) -----------------
+
+
+def test_a_second_client_on_the_same_port_is_refused_as_busy(sim_tracker: SimTracker,
+                                                               tracker: SerialLaserTracker) -> None:
+    second = SerialLaserTracker(sim_tracker.port, timeout_s=1.0)
+    with pytest.raises(DeviceBusy, match=re.escape(sim_tracker.port)) as info:
+        second.open()
+    assert info.value.code == "DEVICE_BUSY"
+    # the first client's exchange is untouched: its replies are neither stolen nor garbled
+    truth = sim_tracker.cell.tracker_targets()
+    for nest in ("B1", "B2"):
+        assert np.linalg.norm(tracker.measure_point(nest).point_mm - truth[nest]) < 6 * NOISE_3D_MM
+    tracker.close()
+    second.open()  # once the first client let go, the port is free
+    second.close()
+
+
+@pytest.mark.parametrize("nest", ["B 1", "", "Bä", "B1\n2 *IDN?"])
+def test_a_nest_name_the_protocol_cannot_carry_is_a_typed_error(tracker: SerialLaserTracker, nest: str) -> None:
+    with pytest.raises(DeviceRequestInvalid, match=re.escape(repr(nest))):
+        tracker.measure_point(nest)
+    assert tracker.measure_point("B1").nest == "B1"  # nothing was sent: the exchange stays in step
+
+
+@pytest.mark.parametrize("timeout_s", [0.0, -1.0, float("nan")])
+def test_a_timeout_that_is_not_a_positive_number_is_refused(tracker: SerialLaserTracker, timeout_s: float) -> None:
+    with pytest.raises(DeviceRequestInvalid, match="timeout"):
+        tracker.measure_point("B1", timeout_s=timeout_s)
+
+
+def test_calls_from_threads_do_not_interleave(sim_tracker: SimTracker, tracker: SerialLaserTracker) -> None:
+    truth = sim_tracker.cell.tracker_targets()
+    nests = ("B1", "B2", "B3", "P1")
+    errors: list[str] = []
+
+    def measure(nest: str) -> None:
+        for _ in range(8):
+            try:
+                m = tracker.measure_point(nest)
+            except Exception as exc:
+                errors.append(f"{nest}: {exc!r}")
+                return
+            if m.nest != nest or np.linalg.norm(m.point_mm - truth[nest]) > 6 * NOISE_3D_MM:
+                errors.append(f"{nest}: got {m.point_mm} (another thread's reply?)")
+
+    threads = [threading.Thread(target=measure, args=(n,)) for n in nests]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(30)
+    assert not errors, errors
+
+
+class _OutputNeverDrains:
+    """A serial port whose output queue never empties (hardware flow control held off by the far end).
+    A pty always drains at once, so this cannot be made with a real port here."""
+
+    def __init__(self) -> None:
+        self.write_timeout: float | None = None
+        self.written = b""
+        self.reset = False
+
+    def write(self, data: bytes) -> int:
+        self.written += data
+        return len(data)
+
+    @property
+    def out_waiting(self) -> int:
+        return 0 if self.reset else len(self.written)
+
+    def reset_output_buffer(self) -> None:
+        self.reset = True
+
+
+def test_a_line_that_never_leaves_the_port_times_out_at_the_deadline() -> None:
+    port = _OutputNeverDrains()
+    channel = SerialLineChannel(port, "tracker on fake")  # type: ignore[arg-type]
+    t0 = time.monotonic()
+    with pytest.raises(DeviceTimeout, match="did not leave the output buffer"):
+        channel.write_line(b"1 *IDN?\n", t0 + 0.3)
+    assert 0.25 < time.monotonic() - t0 < 1.0 and port.reset  # bounded, and the stuck line was discarded

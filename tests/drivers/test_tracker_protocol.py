@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
-from monoguide.drivers.errors import DeviceFault, DeviceProtocolError
+from monoguide.drivers.errors import DeviceFault, DeviceProtocolError, DeviceRequestInvalid
 from monoguide.drivers.tracker_protocol import (
     Reply,
     decode_reply,
@@ -18,6 +20,7 @@ from monoguide.drivers.tracker_protocol import (
     parse_measurement,
     raise_for_error,
 )
+from monoguide.solver.errors import MonoguideError
 
 
 def test_request_round_trip() -> None:
@@ -26,10 +29,13 @@ def test_request_round_trip() -> None:
     assert decode_request(line.rstrip(b"\n")).args == ("B1",)
 
 
-@pytest.mark.parametrize("bad", [(0, "X"), (1, "TWO WORDS"), (1, "")])
-def test_bad_requests_are_refused(bad: tuple[int, str]) -> None:
-    with pytest.raises(ValueError):
+@pytest.mark.parametrize(("bad", "named"), [((0, "X"), "tag 0"), ((1, "TWO WORDS"), "'TWO WORDS'"), ((1, ""), "''"),
+                                            ((1, "MEAS:POINT?", "B 1"), "'B 1'"), ((1, "X", "Bä"), "'Bä'"),
+                                            ((1, "X", "B\x07"), "'B\\x07'"), ((1, "X", "B" * 300), "longer than")])
+def test_bad_requests_are_refused_with_a_typed_error_naming_the_value(bad: tuple, named: str) -> None:
+    with pytest.raises(DeviceRequestInvalid, match=re.escape(named)) as info:
         encode_request(*bad)
+    assert isinstance(info.value, MonoguideError) and info.value.code == "DEVICE_REQUEST_INVALID"
 
 
 def test_ok_and_error_replies_decode() -> None:

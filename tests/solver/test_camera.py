@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from monoguide.solver.camera import PAPER_CAMERA, CameraModel
-from monoguide.solver.errors import RecordError
+from monoguide.solver.errors import MissingKey, RecordError, UnknownKey
 
 
 def _grid(cam: CameraModel, n: int = 60) -> np.ndarray:
@@ -68,3 +68,23 @@ def test_from_dict_missing_key():
     del values["cx"]
     with pytest.raises(RecordError, match=r"camera\.cx: missing"):
         CameraModel.from_dict(values)
+
+
+@pytest.mark.parametrize("key", ["k1", "k2", "p1", "p2"])
+def test_from_dict_requires_every_distortion_coefficient(key):
+    """No silent zero: a camera without k1 solved 2.7 mm off on the old reader."""
+    values = PAPER_CAMERA.as_dict()
+    del values[key]
+    with pytest.raises(MissingKey, match=rf"camera\.{key}: missing"):
+        CameraModel.from_dict(values)
+
+
+def test_from_dict_refuses_an_unknown_key_naming_the_closest():
+    values = PAPER_CAMERA.as_dict() | {"cxx": 1200.0}
+    with pytest.raises(UnknownKey, match=r"intrinsics: unknown key 'cxx'; did you mean cx\?"):
+        CameraModel.from_dict(values, where="intrinsics")
+
+
+def test_from_dict_refuses_a_fractional_image_size():
+    with pytest.raises(RecordError, match=r"camera\.width: expected a whole number"):
+        CameraModel.from_dict(PAPER_CAMERA.as_dict() | {"width": 2456.5})

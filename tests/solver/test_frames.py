@@ -82,3 +82,18 @@ def test_check_transform_names_the_defect(matrix, fragment):
     with pytest.raises(NotARotation, match=fragment) as info:
         frames.check_transform(matrix, "T_s1_w0")
     assert "T_s1_w0" in str(info.value)
+
+
+def test_rigid_transform_accepts_rounding_and_refuses_more():
+    T = frames.make_T(frames.rotvec_to_matrix(np.radians([10.0, -20.0, 130.0])), [1.0, 2.0, 3.0])
+    rounded = np.round(T, 5)
+    assert np.max(np.abs(rounded[:3, :3].T @ rounded[:3, :3] - np.eye(3))) > 1e-6  # refused before issue 7
+    exact = frames.rigid_transform(rounded, "T")
+    np.testing.assert_allclose(exact[:3, :3].T @ exact[:3, :3], np.eye(3), atol=1e-14)
+    np.testing.assert_allclose(exact, T, atol=2e-5)
+    skewed = T.copy()
+    skewed[0, 0] += 5e-4
+    with pytest.raises(NotARotation, match=r"\|R\^T R - I\| = 0\.00\d+, more than rounding"):
+        frames.rigid_transform(skewed, "T")
+    with pytest.raises(NotARotation, match="not finite"):
+        frames.rigid_transform(np.full((4, 4), np.nan), "T")

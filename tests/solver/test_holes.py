@@ -13,6 +13,7 @@ from monoguide.drivers.sim.hole_renderer import (
     HoleSpec,
     PartEdge,
     RenderSettings,
+    defocus_for_depth_of_field,
     render_expected_image,
     render_view,
     scatter_clutter,
@@ -29,6 +30,7 @@ from monoguide.solver.errors import (
     ImageSaturated,
     LowContrast,
 )
+from monoguide.solver.hole_edges import bit_depth_of
 from monoguide.solver.holes import find_holes, measure_hole, perspective_correction
 
 CROP = 360
@@ -292,3 +294,100 @@ def test_ellipse_fit_recovers_an_exact_ellipse_and_refuses_too_few_points():
     assert np.max(np.abs(fitted.distances(truth.points(17)))) < 1e-9
     with pytest.raises(FeatureNotFound, match="at least 6 points"):
         fit_ellipse(truth.points(5))
+
+
+@pytest.mark.parametrize(("pixel_format", "bits"), [("Mono10", 10), ("Mono12", 12), ("Mono12p", 12), ("Mono16", 16)])
+def test_mono10_and_mono12_frames_are_scaled_by_their_bit_depth(pixel_format, bits):
+    camera, T, hole, view = _scene(7, 7.0, RenderSettings(noise_sigma=2.0), clutter=False)
+    deep = np.round(view.image.astype(float) * ((2**bits - 1) / 255.0)).astype(np.uint16)
+    r_px = _radius_px(camera, T, hole)
+    found = measure_hole(deep, view.centers_px[0], r_px, bit_depth=bit_depth_of(pixel_format))
+    correction = perspective_correction(camera, T, hole.center_w, hole.normal_w, hole.radius_mm)
+    assert np.hypot(*(found.center - correction - view.centers_px[0])) < 0.05
+    assert found.contrast == pytest.approx(150.0, rel=0.15)  # the rendered 180 - 30, on the 0-255 scale
+
+
+def test_bit_depth_refuses_what_it_cannot_be():
+    image = np.full((50, 50), 5000, np.uint16)
+    with pytest.raises(BadImage, match=r"value of 5000 in a 12-bit image"):
+        find_holes(image, bit_depth=12)
+    with pytest.raises(BadImage, match="Mono8, Mono10"):
+        bit_depth_of("RGB8")
+    with pytest.raises(BadImage, match=r"8\.\.16"):
+        find_holes(image, bit_depth=7)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_sensor_noise_alone_is_no_hole(seed):
+    rng = np.random.default_rng(seed)
+    noise = np.clip(rng.normal(128.0, 12.0 * (seed + 1), (700, 900)), 0, 255).astype(np.uint8)
+    assert find_holes(noise) == []
+    with pytest.raises(HoleNotFound):
+        measure_hole(noise, (450.0, 350.0), 15.0, max_offset_px=300.0)
+
+
+def test_a_roi_inside_the_hole_finds_it_by_its_centre():
+    *_, view = _scene(9, 7.0, RenderSettings(), clutter=False)
+    u, v = view.centers_px[0]
+    [found] = find_holes(view.image, roi=(round(u) - 5, round(v) - 5, 10, 10))
+    assert np.hypot(*(found.center - view.centers_px[0])) < 0.1
+    assert find_holes(view.image, roi=(round(u) + 6, round(v) - 5, 10, 10)) == []
+
+
+def _look_at(eye: np.ndarray, target: np.ndarray, roll: float) -> np.ndarray:
+    """``T_c_w`` of a camera at ``eye`` looking at ``target``, turned by ``roll`` rad about its axis."""
+    z = (target - eye) / np.linalg.norm(target - eye)
+    x = np.cross([1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0], z)
+    x /= np.linalg.norm(x)
+    R_w_c = np.column_stack([x, np.cross(z, x), z]) @ frames.rotvec_to_matrix(np.array([0.0, 0.0, roll]))
+    return frames.make_T(R_w_c.T, -R_w_c.T @ eye)
+
+
+@pytest.mark.parametrize("tilt_deg", [30.0, 40.0])
+def test_oblique_views_over_the_depth_range_keep_their_accuracy(tilt_deg):
+    # The planned layout: line of sight 30-40 deg from the sheet normal, depth 550-800 mm, a lens focused at
+    # 652 mm whose blur circle is 2 px at 550 and 800 mm; the hole anywhere in the full frame.
+    focus, aperture = defocus_for_depth_of_field(math.sqrt(PAPER_CAMERA.fx * PAPER_CAMERA.fy), 550.0, 800.0, 2.0)
+    corrected, raw = [], []
+    for seed in range(8):
+        rng = np.random.default_rng(200 + seed)
+        azimuth, tilt = rng.uniform(0, 2 * math.pi), math.radians(tilt_deg)
+        sight = np.array([math.sin(tilt) * math.cos(azimuth), math.sin(tilt) * math.sin(azimuth), math.cos(tilt)])
+        hole = HoleSpec(np.zeros(3), rng.uniform(4.0, 10.0))
+        aim = np.array([*rng.uniform(-150.0, 150.0, 2), 0.0])  # the hole off the image centre
+        T = _look_at(rng.uniform(550.0, 800.0) * sight, aim, rng.uniform(0, 2 * math.pi))
+        full_frame = PAPER_CAMERA.project(T[:3, 3][None])[0]
+        camera, _ = _crop_camera(*full_frame, size=300)
+        settings = RenderSettings(noise_sigma=2.0, sheet_grey=170.0, hole_grey=40.0,
+                                  focus_distance_mm=focus, aperture_mm=aperture)
+        view = render_view(camera, T, [hole], settings, rng, scatter_clutter(hole, rng, count=2))
+        r_px = _radius_px(camera, T, hole) * math.sqrt(math.cos(tilt))  # foreshortened
+        found = measure_hole(view.image, view.centers_px[0] + rng.normal(0.0, 5.0, 2), r_px)
+        T_approx = frames.make_T(frames.rotvec_to_matrix(np.radians([0.2, -0.1, 0.1])) @ T[:3, :3], T[:3, 3] + 0.6)
+        correction = perspective_correction(camera, T_approx, hole.center_w, hole.normal_w, hole.radius_mm)
+        corrected.append(np.hypot(*(found.center - correction - view.centers_px[0])))
+        raw.append(np.hypot(*(found.center - view.centers_px[0])))
+        assert abs(found.mean_radius / r_px - 1.0) < 0.05
+    corrected = np.array(corrected)
+    assert math.sqrt(np.mean(corrected**2)) < 0.02, corrected
+    assert corrected.max() < 0.04, corrected
+    assert math.sqrt(np.mean(np.square(raw))) > 0.05  # the conic-centre bias the correction removes
+
+
+@pytest.mark.parametrize(("tilt_deg", "seed"), [(30.0, 0), (40.0, 1), (45.0, 2)])
+def test_perspective_correction_is_exact_for_oblique_circles(tilt_deg, seed):
+    # Noise-free 16-bit renders through the distorted lens: what is left after the correction is the
+    # detector's own bias, ~1e-3 px, while the conic-centre bias itself is 0.1-0.4 px.
+    rng = np.random.default_rng(300 + seed)
+    azimuth, tilt = rng.uniform(0, 2 * math.pi), math.radians(tilt_deg)
+    sight = np.array([math.sin(tilt) * math.cos(azimuth), math.sin(tilt) * math.sin(azimuth), math.cos(tilt)])
+    hole = HoleSpec(np.zeros(3), 9.0)
+    T = _look_at(600.0 * sight, np.array([*rng.uniform(-200.0, 200.0, 2), 0.0]), rng.uniform(0, 2 * math.pi))
+    camera, _ = _crop_camera(*PAPER_CAMERA.project(T[:3, 3][None])[0], size=200)
+    image = render_expected_image(camera, T, [hole], RenderSettings(light_gradient=0.0))
+    truth = camera.project(T[:3, 3][None])[0]
+    found = measure_hole(np.round(image * 257.0).astype(np.uint16), truth,
+                         _radius_px(camera, T, hole) * math.sqrt(math.cos(tilt)))
+    correction = perspective_correction(camera, T, hole.center_w, hole.normal_w, hole.radius_mm)
+    assert np.hypot(*correction) > 0.08
+    np.testing.assert_allclose(found.center - truth, correction, atol=0.004)

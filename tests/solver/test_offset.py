@@ -1,14 +1,25 @@
 """The base offset (Eq. 5) moves the taught grasp path with the part; the envelope refuses the rest."""
 
+import math
+
 import numpy as np
 import pytest
 
 from monoguide.solver import frames
 from monoguide.solver.errors import OffsetOutOfEnvelope
-from monoguide.solver.offset import Envelope, base_offset, check_envelope, part_displacement
-from monoguide.solver.synthetic import deviated_part, paper_roof_cell
+from monoguide.solver.offset import (
+    Envelope,
+    base_offset,
+    check_envelope,
+    describe_displacement,
+    part_displacement,
+)
+from monoguide.solver.pose import solve_pose
+from monoguide.solver.record import parse_record, result_to_dict
+from monoguide.solver.synthetic import deviated_part, measurement_record, paper_roof_cell
 
 CELL = paper_roof_cell()
+CENTROID_W = CELL.points_w.mean(axis=0)
 
 
 def test_corrected_grasp_keeps_the_taught_relation_to_the_part():
@@ -23,22 +34,100 @@ def test_corrected_grasp_keeps_the_taught_relation_to_the_part():
         np.testing.assert_allclose(corrected, taught, atol=1e-9)
 
 
-def test_envelope_accepts_inside_and_refuses_outside():
-    points_s1 = frames.transform_points(CELL.T_s1_w0, CELL.points_w)
-    shift = frames.make_T(np.eye(3), [30.0, -20.0, 10.0])
-    angle, moved = check_envelope(shift, points_s1, Envelope(50.0, 5.0))
-    assert angle == pytest.approx(0.0, abs=1e-9) and moved == pytest.approx(np.sqrt(1400.0))
-    with pytest.raises(OffsetOutOfEnvelope, match=r"37\.42 mm.*allows 5 deg and 30 mm"):
-        check_envelope(shift, points_s1, Envelope(30.0, 5.0))
-    centroid = points_s1.mean(axis=0)
-    turn = frames.make_T(np.eye(3), centroid) @ frames.make_T(
-        frames.rotvec_to_matrix(np.radians([0.0, 0.0, 6.0])), np.zeros(3)) @ frames.make_T(np.eye(3), -centroid)
-    with pytest.raises(OffsetOutOfEnvelope, match=r"6\.000 deg"):
-        check_envelope(turn, points_s1, Envelope(500.0, 5.0))
+def _seeded_robot_cell(rng):
+    """SF1 seen from a robot base about 2 m away and turned (like config/sim-cell.toml), and a grasp pose
+    taught on the reference part: the gripper 300 mm above a point of the roof, pointing down onto it."""
+    T_b_s1 = frames.make_T(frames.rotvec_to_matrix(np.radians([178.0, 1.5, -3.0])), [1885.0, 518.0, 1060.0])
+    T_b_w0 = T_b_s1 @ CELL.T_s1_w0
+    grasp_w = CENTROID_W + rng.uniform(-300.0, 300.0, 3) * [1, 1, 0]
+    T_w0_g0 = frames.make_T(np.diag([1.0, -1.0, -1.0]), grasp_w + np.array([0.0, 0.0, 300.0]))
+    return T_b_s1, T_b_w0, T_b_w0 @ T_w0_g0
 
 
-def test_nan_offset_is_refused():
-    bad = np.eye(4)
+@pytest.mark.parametrize("seed", [31, 32, 33])
+def test_base_offset_brings_the_taught_grasp_onto_the_true_part(seed):
+    """Ground truth: the ideal corrected grasp is T_b_w_true inv(T_b_w0) T_b_g0. Through the record, the
+    solve and the result: the reported base offset must reach it to the noise level, and the bare SF1
+    displacement (sent unconjugated) must not."""
+    rng = np.random.default_rng(seed)
+    T_b_s1, T_b_w0, T_b_g0 = _seeded_robot_cell(rng)
+    T_s1_w_true = deviated_part(CELL, rng, 4.0, 40.0)
+    T_b_w_true = T_b_s1 @ T_s1_w_true
+    ideal = T_b_w_true @ frames.invert(T_b_w0) @ T_b_g0
+    pixels = CELL.project(T_s1_w_true) + rng.normal(0, 0.1, (4, 2))
+    record = parse_record(measurement_record(CELL, pixels, 0.1, "grasp", T_b_s1=T_b_s1))
+    result = solve_pose(record.problem)
+    out = result_to_dict(record, result, 1.0)
+    D_b = np.array(out["base_offset"])
+    d_rot, d_mm = frames.pose_difference(D_b @ T_b_g0, ideal)
+    assert d_rot < 0.05 and d_mm < 0.5  # the line's 0.5 mm; sigma here is about 0.1 mm
+    unconjugated = np.array(out["displacement_s1"]) @ T_b_g0
+    assert frames.pose_difference(unconjugated, ideal)[1] > 20.0
+    # the six numbers a KUKA takes are the same matrix (X, Y, Z mm, A, B, C deg, Z-Y'-X'')
+    np.testing.assert_allclose(frames.kuka_frame_to_T(*out["base_offset_xyzabc"]), D_b, atol=1e-6)
+
+
+def _turned(deg_xyz, shift_w=(0.0, 0.0, 0.0), about_w=CENTROID_W):
+    """A part pose T_s1_w: the reference turned about ``about_w`` and shifted, both in the part frame."""
+    move = frames.make_T(np.eye(3), about_w + np.asarray(shift_w)) @ frames.make_T(
+        frames.rotvec_to_matrix(np.radians(deg_xyz)), np.zeros(3)) @ frames.make_T(np.eye(3), -about_w)
+    return CELL.T_s1_w0 @ move
+
+
+def test_a_roof_turned_3_deg_in_place_passes_though_its_corners_move_60_mm():
+    d = describe_displacement(_turned([0.0, 0.0, 3.0]), CELL.T_s1_w0, CENTROID_W)
+    corner_shift = 2 * math.sin(math.radians(1.5)) * np.linalg.norm(CELL.points_w[0] - CENTROID_W)
+    assert corner_shift > 60.0
+    check_envelope(d, Envelope())
+    assert d.rotation_deg == pytest.approx(3.0) and d.grasp_shift_mm == pytest.approx(0.0, abs=1e-9)
+    np.testing.assert_allclose(d.rotation_w0_deg, [0.0, 0.0, 3.0], atol=1e-9)
+
+
+def test_six_degrees_are_refused_naming_the_axis():
+    d = describe_displacement(_turned([0.0, 0.0, 6.0]), CELL.T_s1_w0, CENTROID_W)
+    with pytest.raises(OffsetOutOfEnvelope, match=r"turned \+6\.000 deg about z .* ±5 deg"):
+        check_envelope(d, Envelope())
+
+
+@pytest.mark.parametrize(("axis", "index"), [("x", 0), ("y", 1), ("z", 2)])
+def test_sixty_mm_along_one_axis_is_refused_naming_the_axis(axis, index):
+    shift = np.zeros(3)
+    shift[index] = -60.0
+    d = describe_displacement(_turned([0.5, -0.5, 1.0], shift), CELL.T_s1_w0, CENTROID_W)
+    np.testing.assert_allclose(d.grasp_shift_w0, shift, atol=1e-9)  # the grasp point is the turning centre
+    with pytest.raises(OffsetOutOfEnvelope, match=rf"-60\.00 mm off along {axis} of the reference part .*±50 mm"):
+        check_envelope(d, Envelope())
+
+
+def test_per_axis_limits_and_the_total():
+    d = describe_displacement(_turned([0.0, 0.0, 0.0], [0.0, 0.0, 8.0]), CELL.T_s1_w0, CENTROID_W)
+    check_envelope(d, Envelope())
+    with pytest.raises(OffsetOutOfEnvelope, match=r"\+8\.00 mm off along z.*±5 mm"):
+        check_envelope(d, Envelope(axis_mm=(50.0, 50.0, 5.0)))
+    diagonal = describe_displacement(_turned([0.0, 0.0, 0.0], [40.0, 40.0, 0.0]), CELL.T_s1_w0, CENTROID_W)
+    with pytest.raises(OffsetOutOfEnvelope, match=r"56\.57 mm off at the grasp point"):
+        check_envelope(diagonal, Envelope())  # inside per axis, outside in total
+    tilted = describe_displacement(_turned([4.0, 0.0, 3.5]), CELL.T_s1_w0, CENTROID_W)
+    with pytest.raises(OffsetOutOfEnvelope, match=r"turned 5\.3\d\d deg"):
+        check_envelope(tilted, Envelope())
+
+
+def test_the_grasp_point_decides_the_shift():
+    """The same 3 deg turn about the centre, judged at a corner hole, moves the grasp point 60 mm."""
+    d = describe_displacement(_turned([0.0, 0.0, 3.0]), CELL.T_s1_w0, CELL.points_w[0])
+    assert d.grasp_shift_mm > 60.0
+    with pytest.raises(OffsetOutOfEnvelope, match="mm off"):
+        check_envelope(d, Envelope())
+
+
+def test_nan_displacement_is_refused():
+    bad = CELL.T_s1_w0.copy()
     bad[0, 3] = np.nan
     with pytest.raises(OffsetOutOfEnvelope, match="not finite"):
-        check_envelope(bad, np.zeros((1, 3)), Envelope())
+        check_envelope(describe_displacement(bad, CELL.T_s1_w0, CENTROID_W), Envelope())
+
+
+def test_envelope_limits_must_be_positive():
+    for kwargs in ({"max_mm": 0.0}, {"max_deg": float("nan")}, {"axis_mm": (1.0, 2.0)}):
+        with pytest.raises(ValueError):
+            Envelope(**kwargs)

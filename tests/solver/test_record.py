@@ -1,4 +1,5 @@
-"""The measurement record: every bad-record code, and the example record against its truth."""
+"""The measurement record: every bad-record code, strict keys, rounded matrices, and the example record's
+results against its truth (pose, displacement, grasp-point shift, base offset)."""
 
 import copy
 import json
@@ -9,18 +10,26 @@ import pytest
 
 from monoguide.solver import frames
 from monoguide.solver.errors import (
+    MissingKey,
     NonFiniteValue,
     NotARotation,
     PointBehindCamera,
     RecordError,
     TooFewObservations,
+    UnknownKey,
     UnknownReference,
     UnsupportedFormat,
 )
+from monoguide.solver.offset import Envelope
 from monoguide.solver.pose import solve_pose
 from monoguide.solver.record import parse_record, result_to_dict
 
 EXAMPLE = json.loads((Path(__file__).parents[2] / "examples" / "example-record.json").read_text())
+RESULT_FIELDS = {
+    "id", "status", "T_s1_w", "displacement_s1", "grasp_point_w", "grasp_shift_mm", "grasp_shift_s1_mm",
+    "rotation_deg", "base_offset", "base_offset_xyzabc", "rms_px", "covariance", "sigma_rot_deg",
+    "sigma_trans_mm", "consistency", "method", "iterations", "time_ms",
+}
 
 
 @pytest.mark.parametrize("method", ["ml", "paper"])
@@ -36,20 +45,85 @@ def test_example_record_solves_to_its_truth_within_its_noise(method):
     assert frames.pose_difference(result.T_s1_w, truth)[1] < 0.5
 
 
-def test_result_has_exactly_the_spec_fields_and_the_offset_of_eq5():
+def test_example_result_against_the_truth_of_the_cell():
+    """Every reported quantity against the record's truth (where the part really was), in its frame: the
+    grasp point moves as the true part moves it, and the base offset carries the reference part onto the
+    true one in the robot base frame."""
     record = parse_record(EXAMPLE)
-    result = solve_pose(record.problem)
-    out = result_to_dict(record.id, result, record.problem.T_s1_w0, 1.0)
-    assert set(out) == {"id", "status", "T_s1_w", "offset", "rms_px", "covariance", "sigma_rot_deg",
-                        "sigma_trans_mm", "method", "iterations", "time_ms"}
-    T_s1_w0 = np.array(EXAMPLE["T_s1_w0"])
-    # the spec's definition of the offset, applied to the reported pose (the record's matrices are printed
-    # to 6 decimals, so its T_s1_w0 is orthonormal to 1e-6 only: 650 mm x 1e-6)
-    np.testing.assert_allclose(np.array(out["offset"]), np.array(out["T_s1_w"]) @ np.linalg.inv(T_s1_w0), atol=2e-3)
-    truth_offset = record.truth_T_s1_w @ np.linalg.inv(T_s1_w0)
-    d_rot, d_mm = frames.pose_difference(np.array(out["offset"]), truth_offset)
-    assert d_rot < 0.05 and d_mm < 0.5
+    out = result_to_dict(record, solve_pose(record.problem), 1.0)
+    assert set(out) == RESULT_FIELDS
     assert out["id"] == "example-1" and out["status"] == "ok"
+    T_s1_w0, T_true = np.array(EXAMPLE["T_s1_w0"]), np.array(EXAMPLE["truth"]["T_s1_w"])
+    # the grasp point (the record's, here the holes' centroid) in SF1 before and after
+    g_w = np.append(np.array(EXAMPLE["grasp_point_w"]), 1.0)
+    true_shift_s1 = (T_true @ g_w - T_s1_w0 @ g_w)[:3]
+    np.testing.assert_allclose(out["grasp_shift_s1_mm"], true_shift_s1, atol=0.3)
+    assert out["grasp_shift_mm"] == pytest.approx(np.linalg.norm(true_shift_s1), abs=0.3)
+    true_angle = frames.rotation_angle_deg(T_true[:3, :3] @ T_s1_w0[:3, :3].T)
+    assert out["rotation_deg"] == pytest.approx(true_angle, abs=0.02)
+    # the base offset: the true part in the robot base frame, moved back onto the reference
+    T_b_s1 = np.array(EXAMPLE["T_b_s1"])
+    true_base_offset = np.array(EXAMPLE["truth"]["base_offset"])
+    np.testing.assert_allclose(true_base_offset, (T_b_s1 @ T_true) @ np.linalg.inv(T_b_s1 @ T_s1_w0), atol=2e-3)
+    D_b = np.array(out["base_offset"])
+    g_b = T_b_s1 @ T_s1_w0 @ g_w  # the grasp point on the reference part, in the base frame
+    assert np.linalg.norm(D_b @ g_b - true_base_offset @ g_b) < 0.3  # where the robot grips, mm
+    assert frames.pose_difference(D_b, true_base_offset)[0] < 0.02
+    x, y, z, a, b, c = out["base_offset_xyzabc"]
+    np.testing.assert_allclose(frames.kuka_frame_to_T(x, y, z, a, b, c), D_b, atol=1e-6)
+    assert out["consistency"]["dof"] == 2 and out["consistency"]["chi2"] < out["consistency"]["threshold"]
+
+
+def test_a_record_without_T_b_s1_has_no_base_offset_and_the_centroid_as_grasp_point():
+    data = copy.deepcopy(EXAMPLE)
+    for key in ("T_b_s1", "grasp_point_w", "envelope"):
+        del data[key]
+    record = parse_record(data)
+    assert record.T_b_s1 is None and record.envelope == Envelope()
+    np.testing.assert_allclose(record.grasp_point_w, np.mean(EXAMPLE["points_w"], axis=0))
+    out = result_to_dict(record, solve_pose(record.problem), 1.0)
+    assert out["base_offset"] is None and out["base_offset_xyzabc"] is None
+    assert "offset" not in out
+
+
+def _reported(data):
+    record = parse_record(data)
+    return record, result_to_dict(record, solve_pose(record.problem), 1.0)
+
+
+@pytest.mark.parametrize("how", ["absent", "null"])
+def test_sigma_px_is_optional_and_defaults_to_a_tenth_of_a_pixel(how):
+    """The spec's default (0.1 px) when a record has no sigma_px (or null): the covariance scales with the
+    square of the centre noise and the whitened residual with its inverse square, so against the same
+    pixels stated at 0.2 px the default's covariance is a quarter and its chi-square four times as large."""
+    data = copy.deepcopy(EXAMPLE)
+    if how == "absent":
+        del data["sigma_px"]
+    else:
+        data["sigma_px"] = None
+    record, default = _reported(data)
+    assert record.problem.sigma_px == 0.1
+    assert default["status"] == "ok" and default["consistency"]["sigma_px"] == 0.1
+    data["sigma_px"] = 0.2
+    _, doubled = _reported(data)
+    assert doubled["consistency"]["sigma_px"] == 0.2
+    np.testing.assert_allclose(doubled["T_s1_w"], default["T_s1_w"], atol=1e-9)  # scaling does not move the fit
+    np.testing.assert_allclose(np.array(doubled["covariance"]), 4.0 * np.array(default["covariance"]),
+                               rtol=1e-4, atol=1e-15)
+    # reported to 6 decimals: within the rounding of both
+    assert doubled["sigma_trans_mm"] == pytest.approx(2.0 * default["sigma_trans_mm"], abs=2e-6)
+    assert doubled["sigma_rot_deg"] == pytest.approx(2.0 * default["sigma_rot_deg"], abs=2e-6)
+    assert default["consistency"]["chi2"] == pytest.approx(4.0 * doubled["consistency"]["chi2"], rel=1e-4)
+    # and the default is the example's own 0.1 px, written out
+    _, stated = _reported(EXAMPLE)
+    assert EXAMPLE["sigma_px"] == 0.1
+    np.testing.assert_allclose(np.array(default["covariance"]), np.array(stated["covariance"]), rtol=1e-9)
+
+
+def test_envelope_of_the_record():
+    data = copy.deepcopy(EXAMPLE)
+    data["envelope"] = {"mm": 40.0, "deg": 3.0, "axis_mm": [40.0, 40.0, 5.0]}
+    assert parse_record(data).envelope == Envelope(40.0, 3.0, (40.0, 40.0, 5.0))
 
 
 def _broken(path, value):
@@ -79,9 +153,18 @@ _DELETE = object()
         (("observations", 3, "point"), "a", RecordError, "integer"),
         (("views", 1, "T_s1_si", 0, 0), 1.2, NotARotation, r"views\[1\]\.T_s1_si"),
         (("T_s1_w0", 0, 0), -0.5, NotARotation, "T_s1_w0"),
+        (("T_b_s1", 1, 1), 0.5, NotARotation, "T_b_s1"),
         (("camera", "fx"), "big", RecordError, r"camera\.fx"),
-        (("camera",), _DELETE, RecordError, "camera: missing"),
+        (("camera",), _DELETE, MissingKey, "camera: missing"),
+        (("camera", "k1"), _DELETE, MissingKey, r"camera\.k1: missing"),
+        (("camera", "p2"), _DELETE, MissingKey, r"camera\.p2: missing"),
+        (("observations", 0, "pixel"), _DELETE, MissingKey, r"observations\[0\]\.pixel: missing"),
+        (("views", 2, "T_s1_si"), _DELETE, MissingKey, r"views\[2\]\.T_s1_si: missing"),
         (("sigma_px",), -0.1, RecordError, "sigma_px"),
+        (("grasp_point_w",), [1.0, 2.0], RecordError, "grasp_point_w"),
+        (("envelope", "mm"), 0.0, RecordError, r"envelope\.mm"),
+        (("envelope", "deg"), _DELETE, MissingKey, r"envelope\.deg: missing"),
+        (("truth", "T_s1_w"), _DELETE, MissingKey, r"truth\.T_s1_w: missing"),
         (("observations",), [], TooFewObservations, "0 observation"),
         (("observations", 0, "pixel"), [5000.0, 100.0], RecordError, "outside"),
         (("views", 0, "T_s1_si"), [[1, 0, 0, 10], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], RecordError, "identity"),
@@ -91,6 +174,73 @@ def test_bad_record_gets_its_code(path, value, error, fragment):
     with pytest.raises(error, match=fragment) as info:
         parse_record(_broken(path, value))
     assert info.value.code  # every error carries a stable code for the result line
+
+
+@pytest.mark.parametrize(
+    ("path", "key", "fragment"),
+    [
+        ((), "sigma_pix", r"unknown key 'sigma_pix'; did you mean sigma_px\?"),
+        ((), "T_b_s", r"did you mean T_b_s1\?"),
+        ((), "offset", r"unknown key 'offset'"),
+        (("camera",), "k3", r"camera: unknown key 'k3'; known keys: cx, cy, fx, fy, height, k1, k2, p1, p2"),
+        (("camera",), "fxx", r"camera: unknown key 'fxx'; did you mean fx\?"),
+        (("views", 1), "T_s1_s", r"views\[1\]: unknown key 'T_s1_s'; did you mean T_s1_si\?"),
+        (("observations", 2), "pixels", r"observations\[2\]: unknown key 'pixels'; did you mean pixel\?"),
+        (("envelope",), "axis_m", r"envelope: unknown key 'axis_m'; did you mean axis_mm\?"),
+        (("truth",), "T_s1_ww", r"truth: unknown key 'T_s1_ww'; did you mean T_s1_w\?"),
+    ],
+)
+def test_unknown_keys_are_refused_with_the_closest_known_one(path, key, fragment):
+    data = copy.deepcopy(EXAMPLE)
+    target = data
+    for step in path:
+        target = target[step]
+    target[key] = 1.0
+    with pytest.raises(UnknownKey, match=fragment) as info:
+        parse_record(data)
+    assert info.value.code == "RECORD_UNKNOWN_KEY"
+
+
+def test_unknown_key_in_view_sigma():
+    data = copy.deepcopy(EXAMPLE)
+    data["view_sigma"] = {"mm": 0.05, "degree": 0.01}
+    with pytest.raises(UnknownKey, match=r"view_sigma: unknown key 'degree'; did you mean deg\?"):
+        parse_record(data)
+
+
+def test_missing_k1_is_not_a_silent_zero():
+    """The old reader solved a record without k1 with k1 = 0 (millimetres off); now it names the key."""
+    data = copy.deepcopy(EXAMPLE)
+    del data["camera"]["k1"]
+    with pytest.raises(MissingKey, match=r"camera\.k1: missing"):
+        parse_record(data)
+
+
+def _rounded(matrix, decimals):
+    return [[round(v, decimals) for v in row] for row in matrix]
+
+
+def test_matrices_rounded_to_5_decimals_are_accepted_and_orthonormalised():
+    data = copy.deepcopy(EXAMPLE)
+    R = frames.rotvec_to_matrix(np.radians([3.0, -2.0, 177.0]))
+    T = frames.make_T(R, [162.252524, -123.153672, 650.0])
+    data["T_s1_w0"] = _rounded(T.tolist(), 5)
+    R5 = np.array(data["T_s1_w0"])[:3, :3]
+    assert 1e-6 < np.max(np.abs(R5.T @ R5 - np.eye(3))) < 1e-4  # what the old reader refused
+    T_s1_w0 = parse_record(data).problem.T_s1_w0
+    np.testing.assert_allclose(T_s1_w0[:3, :3].T @ T_s1_w0[:3, :3], np.eye(3), atol=1e-14)
+    assert frames.pose_difference(T_s1_w0, T)[0] < 1e-3
+
+
+def test_a_matrix_beyond_rounding_is_refused_with_its_measured_defect():
+    data = copy.deepcopy(EXAMPLE)
+    data["T_s1_w0"] = _rounded(data["T_s1_w0"], 6)
+    data["T_s1_w0"][0][1] += 0.003
+    R = np.array(data["T_s1_w0"])[:3, :3]
+    defect = np.max(np.abs(R.T @ R - np.eye(3)))  # about 0.003, depending on the rest of the matrix
+    assert 0.002 < defect < 0.004
+    with pytest.raises(NotARotation, match=rf"T_s1_w0: .*\|R\^T R - I\| = {defect:.3g}, more than rounding"):
+        parse_record(data)
 
 
 def test_same_point_twice_in_one_view():

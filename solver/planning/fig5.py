@@ -1,4 +1,5 @@
-"""Measuring-pose planning (Section 4, Fig. 5): where each hole should land in the image.
+"""The paper's own planning (Section 4, Fig. 5): cameras looking straight down, where each hole should land
+in the image.
 
 The camera stops right above each featured hole (its orientation is fixed by the hole), so only its
 position is free: the planner chooses where in the image each hole is seen. Moving the holes from the
@@ -15,8 +16,7 @@ import numpy as np
 
 from monoguide.solver import frames
 from monoguide.solver.camera import CameraModel
-from monoguide.solver.problem import PoseProblem
-from monoguide.solver.uncertainty import predicted_covariance
+from monoguide.solver.planning.prediction import layout_covariance
 
 # Camera axes in the part frame when looking straight down onto the sheet: x_c = -x_w, y_c = y_w,
 # z_c = -z_w (the orientation of the paper's cell, Sec. 5.2: a 180 deg turn about the part's y axis).
@@ -105,25 +105,3 @@ def uncertainty_map(
             sigma_rot[iv, iu] = math.degrees(math.sqrt(np.trace(covariance[:3, :3])))
             sigma_trans[iv, iu] = math.sqrt(np.trace(covariance[3:, 3:]))
     return UncertaintyMap(offsets_u, offsets_v, sigma_trans, sigma_rot)
-
-
-def layout_covariance(
-    camera: CameraModel,
-    points_w: np.ndarray,
-    T_w_si: list[np.ndarray],
-    sigma_px: float = 1.0,
-    view_sigma_mm: float = 0.0,
-    view_sigma_deg: float = 0.0,
-) -> np.ndarray:
-    """Predicted covariance (6, 6) of ``T_s1_w`` for a layout where view i sees point i from ``T_w_si[i]``
-    (the part at its reference pose)."""
-    T_s1_w0 = frames.invert(T_w_si[0])
-    T_s1_si = np.stack([T_s1_w0 @ T for T in T_w_si])
-    n = len(points_w)
-    pixels = np.stack(
-        [camera.project(frames.transform_points(frames.invert(T_w_si[i]), points_w[i : i + 1]))[0] for i in range(n)]
-    )
-    problem = PoseProblem(
-        camera, points_w, T_s1_si, np.arange(n), np.arange(n), pixels, T_s1_w0, sigma_px, view_sigma_mm, view_sigma_deg
-    )
-    return predicted_covariance(problem, T_s1_w0)

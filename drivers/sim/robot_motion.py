@@ -1,0 +1,303 @@
+"""The simulated robot program, shared by the simulated UR and KUKA controllers (protocol-free).
+
+It plays the part of the robot program of ``config/ur/`` and ``config/kuka/``: on a request to go to
+measuring pose number k it moves there in ``move_time_s`` and stops at the taught flange pose plus the
+cell's repeatability noise, then reports k in position and acknowledges the request's sequence number; on
+an offset ``D_b`` it applies it to the taught grasp pose (``pose_trans(D_b, grasp)``), acknowledges, and
+scores it: the **grasp error**, that grasp pose against the ideal one ``T_b_w · T_b_w0⁻¹ · T_b_g0`` which
+fits the true part exactly, logged with the part and the sequence number.
+
+The truth comes from the robot spec file that :meth:`SimCell.write_robot_spec` writes (re-read when it
+changes: a new part); what the robot did goes to a truth file (:func:`read_truth`) that the in-process
+simulated camera follows (:meth:`SimCell.set_actual_flange_pose`) and tests score against.
+
+Failure modes on command (``--fault``), applied from the first request on: ``stall`` (the controller
+freezes: nothing answered, nothing sent), ``drop`` (it closes every connection), ``protective-stop``
+(safety stop, no motion), ``never-reach`` (moves but never arrives), ``no-ack`` (offsets are never
+acknowledged); and from the start ``program-stopped`` (the robot program is not running).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import math
+import os
+import signal
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from monoguide.drivers.robot import (
+    COMMAND_GOTO,
+    COMMAND_NONE,
+    COMMAND_OFFSET,
+    PROGRAM_BAD_POSE,
+    PROGRAM_BUSY,
+    PROGRAM_OK,
+    PROGRAM_UNKNOWN_COMMAND,
+)
+from monoguide.drivers.sim.cell import ROBOT_SPEC_FORMAT, SimCell
+from monoguide.solver.frames import (
+    compose,
+    invert,
+    make_T,
+    matrix_to_rotvec,
+    pose_difference,
+    rotvec_to_matrix,
+)
+
+log = logging.getLogger("monoguide.sim.robot")
+
+TRUTH_FORMAT = "monoguide.sim-robot-truth/1"
+FAULT_MODES = ("none", "stall", "drop", "protective-stop", "never-reach", "no-ack", "program-stopped")
+MAX_OFFSETS_KEPT = 200
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """What the simulated robot knows of the cell (all in its base frame, mm)."""
+
+    part: int
+    seed: int
+    repeatability_mm: float
+    repeatability_deg: float
+    T_b_f_taught: tuple[np.ndarray, ...]
+    T_b_w0: np.ndarray
+    T_b_w: np.ndarray
+    T_b_g0: np.ndarray
+
+
+@dataclass
+class AppliedOffset:
+    sequence: int
+    part: int
+    received: tuple[float, ...]  # as it arrived on the wire, in the wire's units
+    D_b: np.ndarray
+    grasp_error_mm: float
+    grasp_error_deg: float
+
+
+@dataclass
+class SimRobotProgram:
+    """The robot program's state and its answers. Time is passed in (``now``, seconds), never read."""
+
+    spec: RobotSpec
+    rng: np.random.Generator
+    move_time_s: float = 0.5
+    fault: str = "none"
+    T_b_f: np.ndarray = field(default_factory=lambda: np.eye(4))
+    in_position: int = 0
+    ack_sequence: int = 0
+    program_status: int = PROGRAM_OK
+    safety: str = "NORMAL"
+    last_sequence: int = 0
+    requests: int = 0
+    offsets: list[AppliedOffset] = field(default_factory=list)
+    stops: dict[int, np.ndarray] = field(default_factory=dict)
+    _move: tuple[float, np.ndarray, np.ndarray, int, int] | None = None  # start, from, to, number, seq
+
+    def __post_init__(self) -> None:
+        if self.fault not in FAULT_MODES:
+            raise ValueError(f"fault must be one of {FAULT_MODES}, got {self.fault!r}")
+        self.T_b_f = self._stop_at(1)  # the robot starts at measuring pose S1
+        self.in_position = 1
+
+    @property
+    def program_running(self) -> bool:
+        return self.fault != "program-stopped"
+
+    @property
+    def faulted(self) -> bool:
+        """A request has arrived and the configured fault is now in effect."""
+        return self.fault != "none" and self.requests > 0
+
+    def handle(self, sequence: int, command: int, pose_number: int, D_b: np.ndarray | None,
+               received: tuple[float, ...], now: float) -> bool:
+        """React to the request registers (the program polls them): a new ``sequence`` with a command is a
+        new request; the same one again is ignored. Returns whether it was new."""
+        if sequence == 0:
+            self.last_sequence = 0  # the daemon (re)connected: the next number is new whatever it is
+            return False
+        if command == COMMAND_NONE or sequence == self.last_sequence:
+            return False
+        self.last_sequence = sequence
+        self.requests += 1
+        log.info("request %d: command %d pose %d offset %s", sequence, command, pose_number,
+                 " ".join(f"{v:.9g}" for v in received))
+        if self.fault == "protective-stop":
+            self.safety = "PROTECTIVE_STOP"
+            self._move = None
+            return True
+        if command == COMMAND_GOTO:
+            if not 1 <= pose_number <= len(self.spec.T_b_f_taught):
+                self._answer(sequence, PROGRAM_BAD_POSE)
+                return True
+            self.in_position = 0
+            self.program_status = PROGRAM_BUSY
+            self._move = (now, self.T_b_f.copy(), self._stop_at(pose_number), pose_number, sequence)
+        elif command == COMMAND_OFFSET and D_b is not None:
+            self._apply_offset(sequence, D_b, received)
+        else:
+            self._answer(sequence, PROGRAM_UNKNOWN_COMMAND)
+        return True
+
+    def tick(self, now: float) -> None:
+        """Advance the motion to time ``now``."""
+        if self._move is None:
+            return
+        start, T_from, T_to, number, sequence = self._move
+        s = 1.0 if self.move_time_s <= 0 else min(1.0, (now - start) / self.move_time_s)
+        if self.fault == "never-reach":
+            s = min(s, 0.5)
+        self.T_b_f = _interpolate(T_from, T_to, s)
+        if s >= 1.0:
+            self._move = None
+            self.in_position = number
+            self.stops[number] = T_to.copy()
+            self._answer(sequence, PROGRAM_OK)
+            log.info("in position at S%d (request %d)", number, sequence)
+
+    def reload(self, spec: RobotSpec) -> None:
+        if spec.part != self.spec.part:
+            log.info("new part %d in the cell", spec.part)
+        self.spec = spec
+
+    def truth(self) -> dict[str, object]:
+        """What the robot did, for the truth file."""
+        return {
+            "format": TRUTH_FORMAT,
+            "pid": os.getpid(),
+            "part": self.spec.part,
+            "in_position": self.in_position,
+            "T_b_f": self.T_b_f.tolist(),
+            "stops": {str(k): T.tolist() for k, T in self.stops.items()},
+            "offsets": [
+                {"sequence": o.sequence, "part": o.part, "received": list(o.received), "D_b": o.D_b.tolist(),
+                 "grasp_error_mm": o.grasp_error_mm, "grasp_error_deg": o.grasp_error_deg}
+                for o in self.offsets[-MAX_OFFSETS_KEPT:]
+            ],
+        }
+
+    # --- private --------------------------------------------------------------------------------
+
+    def _stop_at(self, number: int) -> np.ndarray:
+        s = self.spec
+        noise = make_T(rotvec_to_matrix(self.rng.normal(0.0, math.radians(s.repeatability_deg), 3)),
+                       self.rng.normal(0.0, s.repeatability_mm, 3))
+        return compose(s.T_b_f_taught[number - 1], noise)
+
+    def _apply_offset(self, sequence: int, D_b: np.ndarray, received: tuple[float, ...]) -> None:
+        error_mm, error_deg = grasp_error(D_b, self.spec.T_b_g0, self.spec.T_b_w, self.spec.T_b_w0)
+        self.offsets.append(AppliedOffset(sequence, self.spec.part, received, np.array(D_b, dtype=float),
+                                          error_mm, error_deg))
+        log.info("offset %d for part %d: grasp error %.4f mm %.5f deg", sequence, self.spec.part, error_mm,
+                 error_deg)
+        if self.fault != "no-ack":
+            self._answer(sequence, PROGRAM_OK)
+
+    def _answer(self, sequence: int, status: int) -> None:
+        self.program_status = status
+        self.ack_sequence = sequence
+
+
+async def run_program(program: SimRobotProgram, spec_path: Path, truth_path: Path, now: Callable[[], float],
+                      stalled: Callable[[], bool], stop: asyncio.Event, period_s: float = 0.02) -> None:
+    """The program's loop in a simulated controller: re-read the spec when it changes (a new part), move,
+    write the truth file; nothing moves while the controller is stalled."""
+    spec_mtime = file_mtime(spec_path)
+    while not stop.is_set():
+        if (mtime := file_mtime(spec_path)) != spec_mtime:
+            spec_mtime = mtime
+            try:
+                program.reload(load_robot_spec(spec_path))
+            except (OSError, ValueError, KeyError) as exc:
+                log.warning("keeping the old spec, cannot re-read %s: %s", spec_path, exc)
+        if not stalled():
+            program.tick(now())
+            write_truth(truth_path, program.truth())
+        with contextlib.suppress(asyncio.TimeoutError):
+            await asyncio.wait_for(stop.wait(), period_s)
+
+
+async def serve_controller(client_handler: Callable[..., object], host: str, port: int,
+                           program: Callable[[asyncio.Event], object], drop_all: Callable[[], None]) -> int:
+    """Listen on ``host:port``, print ``LISTEN robot host:port``, run the program loop, until SIGTERM/SIGINT
+    or until the parent process is gone; then close every connection."""
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for s in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(s, stop.set)
+    server = await asyncio.start_server(client_handler, host, port, reuse_address=True)  # type: ignore[arg-type]
+    print(f"LISTEN robot {host}:{port}", flush=True)
+    parent = os.getppid()
+    task = loop.create_task(program(stop))  # type: ignore[arg-type]
+    while not stop.is_set() and os.getppid() == parent:
+        with contextlib.suppress(asyncio.TimeoutError):
+            await asyncio.wait_for(stop.wait(), 0.2)
+    stop.set()
+    server.close()
+    drop_all()
+    await task
+    return 0
+
+
+def grasp_error(D_b: np.ndarray, T_b_g0: np.ndarray, T_b_w: np.ndarray, T_b_w0: np.ndarray) -> tuple[float, float]:
+    """The grasp pose offset ``D_b`` makes of the taught one, ``D_b · T_b_g0`` (what ``pose_trans`` does),
+    against the ideal one ``T_b_w · T_b_w0⁻¹ · T_b_g0``: (distance mm at the TCP, angle deg)."""
+    angle_deg, distance_mm = pose_difference(compose(D_b, T_b_g0), compose(T_b_w, invert(T_b_w0), T_b_g0))
+    return distance_mm, angle_deg
+
+
+def load_robot_spec(path: Path) -> RobotSpec:
+    data = json.loads(Path(path).read_text())
+    if data.get("format") != ROBOT_SPEC_FORMAT:
+        raise ValueError(f"{path}: format must be {ROBOT_SPEC_FORMAT!r}, got {data.get('format')!r}")
+    m = {k: np.asarray(data[k], dtype=float) for k in ("T_b_w0", "T_b_w", "T_b_g0")}
+    return RobotSpec(int(data["part"]), int(data["seed"]), float(data["repeatability_mm"]),
+                     float(data["repeatability_deg"]),
+                     tuple(np.asarray(T, dtype=float) for T in data["T_b_f_taught"]), **m)
+
+
+def write_truth(path: Path, truth: dict[str, object]) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(truth))
+    os.replace(tmp, path)
+
+
+def read_truth(path: Path) -> dict[str, object]:
+    """The truth file of a simulated controller (what it did); matrices as nested lists."""
+    data = json.loads(Path(path).read_text())
+    if data.get("format") != TRUTH_FORMAT:
+        raise ValueError(f"{path}: format must be {TRUTH_FORMAT!r}, got {data.get('format')!r}")
+    return data
+
+
+def follow_truth(cell: SimCell, path: Path) -> int:
+    """Let an in-process :class:`SimCell` (the simulated camera's) stand where the simulated controller's robot
+    stands: every stop it made, then its current measuring pose. Returns that pose number (0: moving)."""
+    truth = read_truth(path)
+    stops = {int(k): np.asarray(T, dtype=float) for k, T in truth["stops"].items()}  # type: ignore[union-attr]
+    current = int(truth["in_position"])  # type: ignore[call-overload]
+    for number in sorted(stops, key=lambda k: k == current):  # the current stop last: it sets current_pose
+        cell.set_actual_flange_pose(number - 1, stops[number])
+    return current
+
+
+def file_mtime(path: Path) -> int:
+    try:
+        return path.stat().st_mtime_ns
+    except OSError:
+        return -1
+
+
+def _interpolate(T_from: np.ndarray, T_to: np.ndarray, s: float) -> np.ndarray:
+    if s >= 1.0:
+        return T_to.copy()
+    dR = T_from[:3, :3].T @ T_to[:3, :3]
+    R = T_from[:3, :3] @ rotvec_to_matrix(s * matrix_to_rotvec(dR))
+    return make_T(R, (1.0 - s) * T_from[:3, 3] + s * T_to[:3, 3])

@@ -1,0 +1,56 @@
+"""Start and stop a simulated robot controller process (tests, benchmarks; ``sim-cell`` has its own loop)."""
+
+from __future__ import annotations
+
+import select
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+CONTROLLER_MODULES = {"ur": "monoguide.drivers.sim.ur_controller", "kuka": "monoguide.drivers.sim.kuka_controller"}
+START_TIMEOUT_S = 15.0
+STOP_TIMEOUT_S = 3.0
+
+
+@dataclass
+class ControllerProcess:
+    process: subprocess.Popen[str]
+    host: str
+    port: int
+    truth: Path
+
+    def stop(self) -> None:
+        stop_process(self.process)
+
+
+def start_controller(kind: str, spec: Path, truth: Path, host: str, port: int | None = None,
+                     move_time_s: float = 0.1, fault: str = "none", seed: int | None = None) -> ControllerProcess:
+    """Start ``python -m monoguide.drivers.sim.<kind>_controller`` and wait for its ``LISTEN`` line."""
+    argv = [sys.executable, "-m", CONTROLLER_MODULES[kind], "--spec", str(spec), "--truth", str(truth),
+            "--host", host, "--move-time", str(move_time_s), "--fault", fault]
+    if port is not None:
+        argv += ["--port", str(port)]
+    if seed is not None:
+        argv += ["--seed", str(seed)]
+    process = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True)
+    assert process.stdout is not None
+    ready, _, _ = select.select([process.stdout], [], [], START_TIMEOUT_S)
+    words = process.stdout.readline().split() if ready else []
+    if words[:2] != ["LISTEN", "robot"] or len(words) != 3:
+        stop_process(process)
+        raise RuntimeError(f"simulated {kind} controller did not start: {words}")
+    address, _, listen_port = words[2].rpartition(":")
+    return ControllerProcess(process, address, int(listen_port), truth)
+
+
+def stop_process(process: subprocess.Popen[str]) -> None:
+    if process.poll() is None:
+        process.terminate()
+        try:
+            process.wait(STOP_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait(STOP_TIMEOUT_S)
+    if process.stdout is not None:
+        process.stdout.close()
