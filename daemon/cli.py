@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from monoguide.daemon import cmd_detect, cmd_plan, cmd_probe, cmd_simcell, cmd_solve
+from monoguide.daemon import cmd_detect, cmd_journal, cmd_plan, cmd_probe, cmd_simcell, cmd_solve, cmd_status
 
 HELP = "Vision-guided robotics: measure a large part with a flange camera, write the robot's base offset."
 
@@ -23,6 +23,8 @@ app.command("plan")(cmd_plan.plan)
 app.command("detect")(cmd_detect.detect)
 app.command("probe")(cmd_probe.probe)
 app.command("sim-cell")(cmd_simcell.sim_cell)
+app.command("status")(cmd_status.status)
+app.add_typer(cmd_journal.app, name="journal")
 
 
 def _print_version(value: bool) -> None:

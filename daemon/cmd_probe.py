@@ -14,6 +14,8 @@ its entry in :data:`PROBES`.
 from __future__ import annotations
 
 import enum
+import struct
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,6 +34,7 @@ from monoguide.drivers.errors import ConfigError
 from monoguide.drivers.robot import RobotStatus
 from monoguide.solver.errors import MonoguideError
 from monoguide.solver.frames import matrix_to_rotvec
+from monoguide.solver.hole_edges import bit_depth_of
 
 EXIT_DEVICE = 1
 EXIT_CONFIG = 2
@@ -106,7 +109,30 @@ def _probe_camera(cfg: CellConfig, options: ProbeOptions, console: Console) -> N
             raise ConfigError(f"--out {out}: cannot write the image: {exc}") from exc
         if not written:
             raise ConfigError(f"--out {out}: cannot write the image there")
-        _say(console, f"saved {out}")
+        bits = _significant_bits(frame.pixel_format)
+        if out.suffix.lower() == ".png" and image.dtype == np.uint16 and bits is not None and bits < 16:
+            out.write_bytes(png_with_significant_bits(out.read_bytes(), bits))
+        _say(console, f"saved {out}" + (f" ({bits} significant bits, in its sBIT chunk)" if bits and bits < 16
+                                        and image.dtype == np.uint16 else ""))
+
+
+def _significant_bits(pixel_format: str) -> int | None:
+    """Bits of a GenICam mono format (Mono12 -> 12), or None for another format."""
+    try:
+        return bit_depth_of(pixel_format)
+    except MonoguideError:
+        return None
+
+
+def png_with_significant_bits(png: bytes, bits: int) -> bytes:
+    """The PNG with an sBIT chunk saying that its 16-bit grey samples hold ``bits`` significant bits (a
+    Mono10/Mono12 frame), so that ``monoguide detect`` scales it by 2**bits - 1 and not by 65535."""
+    ihdr_end = 8 + 8 + 13 + 4  # signature, IHDR length and type, its 13 bytes, CRC
+    if png[12:16] != b"IHDR" or png[25] != 0:  # colour type 0: grey (a mono frame)
+        return png
+    body = b"sBIT" + bytes([bits])
+    chunk = struct.pack(">I", 1) + body + struct.pack(">I", zlib.crc32(body))
+    return png[:ihdr_end] + chunk + png[ihdr_end:]
 
 
 def _check_out(out: Path) -> None:

@@ -1,10 +1,12 @@
 """`monoguide sim-cell`: run the simulated devices that are their own processes, until stopped.
 
-Today that is the laser tracker behind a pseudo-terminal and, when ``[robot] backend`` is ``sim-ur`` or
-``sim-kuka``, the simulated robot controller on ``[robot] host:port`` (its spec and truth files lie beside
-the state file); the PLC joins when its issue lands. Where each device listens goes to stdout and to a
-JSON state file that ``monoguide probe`` (and ``run``) read. Ctrl-C or SIGTERM stops everything; no child
-process is left behind.
+That is the laser tracker behind a pseudo-terminal; when ``[robot] backend`` is ``sim-ur`` or ``sim-kuka``,
+the simulated robot controller on ``[robot] host:port`` (its spec and truth files lie beside the state
+file), which also runs the part supply (a new seeded part at every request of measuring pose 1, one line per
+part in ``--truth-log``); and, with a ``[plc]`` section and without ``--no-plc``, the simulated line PLC on
+``[plc] host:port`` (its per-part records are echoed to stdout as ``plc: {...}``). Where each device listens
+goes to stdout and to a JSON state file that ``monoguide probe`` (and ``run``) read. Ctrl-C or SIGTERM stops
+everything; no child process is left behind.
 
 One sim-cell per state file: the claim is an exclusive ``flock`` on ``<state file>.lock``, held for the
 process's lifetime (the kernel releases it when the process ends, however it ends), so two sim-cells
@@ -44,6 +46,12 @@ def sim_cell(
     state_file: Annotated[
         Path | None, typer.Option("--state-file", help="where to write where the devices listen")
     ] = None,
+    no_plc: Annotated[
+        bool, typer.Option("--no-plc", help="leave the PLC out: another server can listen where [plc] says")
+    ] = False,
+    truth_log: Annotated[
+        Path | None, typer.Option("--truth-log", help="one JSON line per part: its true pose, offsets, grasp error")
+    ] = None,
 ) -> None:
     """Start the simulated cell's device processes and keep them running until Ctrl-C or SIGTERM."""
     stop = {"signal": 0}
@@ -63,6 +71,9 @@ def sim_cell(
         if cfg.tracker.backend != "sim":
             raise ConfigError(f"{cfg.path}: [tracker].backend = {cfg.tracker.backend!r}: sim-cell simulates only "
                               f"'sim' devices")
+        if truth_log is not None and (cfg.robot is None or not cfg.robot.simulated):
+            raise ConfigError(f"--truth-log {truth_log}: the part supply runs in the simulated robot controller; "
+                              f"{cfg.path} has no [robot] backend = \"sim-ur\" or \"sim-kuka\"")
         claim = _StateFileClaim.take(state_file or sim_state_file(cfg))
         state_path = claim.path
         cell = build_sim_cell(cfg)
@@ -80,14 +91,23 @@ def sim_cell(
         }
         robot_files = _robot_files(cfg, state_path)
         if robot_files:
-            robot = _start_robot(cfg, cell, *robot_files)
+            robot = _start_robot(cfg, cell, *robot_files, truth_log)
             children.append(robot.process)
             state["robot"] = robot.state
+        plc = None if no_plc or cfg.plc is None else _start_plc(cfg)
+        if plc is not None:
+            children.append(plc.process)
+            host, _, port = plc.address.rpartition(":")
+            state["plc"] = {"host": host, "port": int(port), "pid": plc.process.pid}
         write_sim_state(state_path, state)
         typer.echo(f"tracker listening on {tracker.address} (pid {tracker.process.pid})")
         if "robot" in state:
             typer.echo(f"robot ({state['robot']['backend']}) listening on {state['robot']['host']}:"
                        f"{state['robot']['port']} (pid {state['robot']['pid']})")
+        if plc is not None:
+            typer.echo(f"plc listening on {plc.address} unit {cfg.plc.unit} (pid {plc.process.pid})")  # type: ignore[union-attr]
+        elif cfg.plc is not None:
+            typer.echo(f"plc left out (--no-plc): {cfg.plc.host}:{cfg.plc.port} is free for another server")
         typer.echo(f"state file {state_path}")
         typer.echo("running; Ctrl-C or SIGTERM stops the simulated cell", err=True)
         sys.stdout.flush()
@@ -96,7 +116,7 @@ def sim_cell(
                 if child.poll() is not None:
                     raise DeviceDisconnected(f"simulated device (pid {child.pid}) ended with status "
                                              f"{child.returncode}")
-            time.sleep(0.1)
+            _echo_plc_records(plc)
         typer.echo(f"stopping ({signal.Signals(stop['signal']).name})", err=True)
     except OSError as exc:  # a state or targets file that cannot be written where the config puts it
         error = ConfigError(f"cannot write {exc.filename or 'a sim-cell file'}: {exc.strerror or exc}")
@@ -191,22 +211,45 @@ class _StartedRobot:
         self.state = state
 
 
-def _start_robot(cfg: CellConfig, cell: Any, spec_path: Path, truth_path: Path) -> _StartedRobot:
-    """Start the simulated controller ``[robot] backend`` names, on ``[robot] host:port``; ``cell`` is the
-    :class:`SimCell` (not imported here: runtime modules never import the simulator)."""
+def _start_robot(cfg: CellConfig, cell: Any, spec_path: Path, truth_path: Path,
+                 truth_log: Path | None) -> _StartedRobot:
+    """Start the simulated controller ``[robot] backend`` names, on ``[robot] host:port``, with the part supply
+    on; ``cell`` is the :class:`SimCell` (not imported here: runtime modules never import the simulator)."""
     r = cfg.robot
     assert r is not None
     cell.write_robot_spec(spec_path)
-    started = _start(
-        [sys.executable, "-m", f"monoguide.drivers.sim.{r.make}_controller", "--spec", str(spec_path), "--truth",
-         str(truth_path), "--host", r.host, "--port", str(r.port), "--move-time", str(r.sim_move_time_s),
-         "--seed", str(cell.spec.seed + 3)],
-        "robot",
-    )
+    argv = [sys.executable, "-m", f"monoguide.drivers.sim.{r.make}_controller", "--spec", str(spec_path), "--truth",
+            str(truth_path), "--host", r.host, "--port", str(r.port), "--move-time", str(r.sim_move_time_s),
+            "--seed", str(cell.spec.seed + 3), "--part-supply"]
+    if truth_log is not None:
+        truth_log.resolve().parent.mkdir(parents=True, exist_ok=True)
+        truth_log.write_text("")  # can it be written? (OSError: a config error naming it)
+        argv += ["--truth-log", str(truth_log.resolve())]
+    started = _start(argv, "robot")
     host, _, port = started.address.rpartition(":")
     return _StartedRobot(started.process, {"backend": r.backend, "host": host, "port": int(port),
                                            "pid": started.process.pid, "spec": str(spec_path),
                                            "truth": str(truth_path)})
+
+
+def _start_plc(cfg: CellConfig) -> _Started:
+    """Start the simulated line PLC on ``[plc] host:port`` with the block at ``base`` for ``unit``, playing parts."""
+    p = cfg.plc
+    assert p is not None
+    return _start([sys.executable, "-m", "monoguide.drivers.sim.plc", "--host", p.host, "--port", str(p.port),
+                   "--unit", str(p.unit), "--base", str(p.base), "--word-order", p.word_order,
+                   "--heartbeat-period", str(min(0.5, p.heartbeat_timeout_s / 4))], "plc", stdin=subprocess.DEVNULL)
+
+
+def _echo_plc_records(plc: _Started | None, wait_s: float = 0.1) -> None:
+    """Wait ``wait_s``, echoing the PLC's per-part records meanwhile (its stdout pipe must not fill up)."""
+    if plc is None or plc.process.stdout is None or plc.process.poll() is not None:
+        time.sleep(wait_s)
+        return
+    ready, _, _ = select.select([plc.process.stdout], [], [], wait_s)
+    if ready and (line := plc.process.stdout.readline().strip()):
+        typer.echo(f"plc: {line}")
+        sys.stdout.flush()
 
 
 class _Started:
@@ -215,9 +258,9 @@ class _Started:
         self.address = address
 
 
-def _start(argv: list[str], name: str) -> _Started:
+def _start(argv: list[str], name: str, stdin: int | None = None) -> _Started:
     """Start one device process and read its ``LISTEN <name> <address>`` line (with a deadline)."""
-    process = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True)
+    process = subprocess.Popen(argv, stdin=stdin, stdout=subprocess.PIPE, text=True)
     deadline = time.monotonic() + START_TIMEOUT_S
     assert process.stdout is not None
     while time.monotonic() < deadline:

@@ -1,9 +1,9 @@
 """The cell configuration: one TOML file, typed and validated on load (:func:`load_cell_config`).
 
 Sections: ``[cell]``, ``[camera]`` (+ ``[camera.intrinsics]``), ``[part]``, ``[reference]``,
-``[[measuring_poses]]``, and the optional ``[tracker]``, ``[sim]``. Matrices are 4x4 row-major lists,
-lengths in mm, angles in degrees. Relative paths are relative to the config file. The keys are
-documented in ``docs/cell-config.md``.
+``[[measuring_poses]]``, and the optional ``[tracker]``, ``[sim]``, ``[layout]``, ``[robot]``, ``[plc]``
+(``docs/plc-interface.md``). Matrices are 4x4 row-major lists, lengths in mm, angles in degrees. Relative
+paths are relative to the config file. The keys are documented in ``docs/cell-config.md``.
 
 Strict: a bad file raises a :class:`ConfigError` naming the key, the value and why; a required key that
 is missing is :class:`ConfigMissingKey` (never a zero), an unknown key or section is
@@ -33,6 +33,8 @@ from monoguide.daemon.config_reader import (
     ConfigUnknownSection,
 )
 from monoguide.drivers.errors import ConfigError
+from monoguide.drivers.plc_registers import BLOCK_SIZE as PLC_BLOCK_SIZE
+from monoguide.drivers.plc_registers import WORD_ORDERS as PLC_WORD_ORDERS
 from monoguide.solver.camera import CameraModel
 from monoguide.solver.errors import RecordError
 from monoguide.solver.frames import compose
@@ -131,6 +133,20 @@ class RobotConfig:
 
 
 @dataclass(frozen=True)
+class PlcConfig:
+    """``[plc]``: the line's PLC, a Modbus TCP server (docs/plc-interface.md)."""
+
+    host: str
+    port: int = 502
+    unit: int = 1  # Modbus unit (device) id
+    base: int = 0  # holding register of the block's register 0
+    word_order: str = "big"  # float32: "big" high word first, "little" low word first
+    heartbeat_timeout_s: float = 2.0  # the PLC heartbeat must change at least this often
+    timeout_s: float = 1.0  # connect and every request
+    ack_timeout_s: float = 10.0  # DONE -> RESULT_ACK with TRIGGER low; longer: PLC_ACK_TIMEOUT is logged
+
+
+@dataclass(frozen=True)
 class SimConfig:
     seed: int = 0
     state_file: Path | None = None
@@ -181,6 +197,7 @@ class CellConfig:
     sim: SimConfig | None = None
     layout: LayoutConfig | None = None
     robot: RobotConfig | None = None
+    plc: PlcConfig | None = None
 
 
 def load_cell_config(path: str | os.PathLike[str]) -> CellConfig:
@@ -412,6 +429,25 @@ def _robot(t: ConfigTable) -> RobotConfig:
     return out
 
 
+def _plc(t: ConfigTable) -> PlcConfig:
+    out = PlcConfig(
+        host=t.text("host"),
+        port=t.integer("port", 502, minimum=1),
+        unit=t.integer("unit", 1, minimum=1),
+        base=t.integer("base", 0, minimum=0),
+        word_order=t.choice("word_order", PLC_WORD_ORDERS, "big"),
+        heartbeat_timeout_s=t.number("heartbeat_timeout_s", 2.0, positive=True),
+        timeout_s=t.number("timeout_s", 1.0, positive=True),
+        ack_timeout_s=t.number("ack_timeout_s", 10.0, positive=True),
+    )
+    for key, value, maximum in (("port", out.port, 65535), ("unit", out.unit, 255),
+                                ("base", out.base, 65536 - PLC_BLOCK_SIZE)):
+        if value > maximum:
+            raise ConfigError(f"{t.where}.{key} = {value}: above {maximum}")
+    t.done()
+    return out
+
+
 def _check_backends(config: CellConfig) -> None:
     """Simulated back-ends need the ``[sim]`` section they are built from."""
     if config.camera.backend == "sim" and config.sim is None:
@@ -430,4 +466,5 @@ OPTIONAL_SECTIONS: dict[str, Callable[[ConfigTable], Any]] = {
     "sim": _sim,
     "layout": _layout,
     "robot": _robot,
+    "plc": _plc,
 }

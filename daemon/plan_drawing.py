@@ -40,6 +40,7 @@ def draw_layout(
         every = np.vstack([points, extremes.reshape(-1, 3), *frusta, current_centres])[:, axes]
         to_px = _mapping(every)
         canvas = np.full((PANEL[1], PANEL[0], 3), 24, np.uint8)
+        placed: list[tuple[int, int]] = []  # label positions so far: labels that would overlap are stacked
         outline = to_px(points[:, axes])
         hull = cv2.convexHull(outline.astype(np.int32))
         cv2.polylines(canvas, [hull], True, GREY, 1, cv2.LINE_AA)
@@ -53,14 +54,14 @@ def draw_layout(
                 cv2.line(canvas, _pt(apex), _pt(q), colour, 1, cv2.LINE_AA)
             cv2.polylines(canvas, [rim.astype(np.int32)], True, colour, 1, cv2.LINE_AA)
             cv2.circle(canvas, _pt(apex), 6, colour, -1, cv2.LINE_AA)
-            cv2.putText(canvas, f"S{i + 1}", _pt(apex + 10), cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour, 1, cv2.LINE_AA)
+            _label(canvas, f"S{i + 1}", _pt(apex + 10), colour, 0.5, placed)
         for i, c in enumerate(current_centres):
             p = _pt(to_px(c[None, axes])[0])
             cv2.drawMarker(canvas, p, GREY, cv2.MARKER_TILTED_CROSS, 12, 2)
-            cv2.putText(canvas, f"now {i + 1}", (p[0] + 8, p[1] + 16), cv2.FONT_HERSHEY_SIMPLEX, 0.4, GREY, 1)
+            _label(canvas, f"now {i + 1}", (p[0] + 8, p[1] + 16), GREY, 0.4, placed)
         for name, p in zip(request.names(), outline, strict=True):
             cv2.circle(canvas, _pt(p), 5, WHITE, -1, cv2.LINE_AA)
-            cv2.putText(canvas, name, _pt(p + np.array([8, -8])), cv2.FONT_HERSHEY_SIMPLEX, 0.5, WHITE, 1, cv2.LINE_AA)
+            _label(canvas, name, _pt(p + np.array([8, -8])), WHITE, 0.5, placed)
         cv2.putText(canvas, label, (12, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.55, WHITE, 1, cv2.LINE_AA)
         panels.append(canvas)
     picture = np.hstack(panels)
@@ -96,6 +97,17 @@ def _mapping(every: np.ndarray):
         return np.column_stack([xy[:, 0] * scale, -xy[:, 1] * scale]) + offset
 
     return to_px
+
+
+def _label(canvas: np.ndarray, text: str, at: tuple[int, int], colour: tuple[int, int, int], scale: float,
+           placed: list[tuple[int, int]]) -> None:
+    """Write ``text`` at ``at``, moved down a line while it would overlap a label already ``placed`` (in the
+    side view cameras and holes that differ only in y coincide)."""
+    x, y = at
+    while any(abs(x - px) < 48 and abs(y - py) < 15 for px, py in placed):
+        y += 16
+    placed.append((x, y))
+    cv2.putText(canvas, text, (x, y), cv2.FONT_HERSHEY_SIMPLEX, scale, colour, 1, cv2.LINE_AA)
 
 
 def _pt(p: np.ndarray) -> tuple[int, int]:

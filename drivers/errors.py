@@ -1,6 +1,6 @@
 """Device and configuration failures, each a :class:`~monoguide.solver.errors.MonoguideError`.
 
-``plc_code`` ranges: 4xx devices (camera, laser tracker, later robot and PLC), 5xx configuration.
+``plc_code`` ranges: 4xx devices (camera, laser tracker, robot 420-449, PLC 450-469), 5xx configuration.
 The ``code`` strings are stable: logs, the journal and the PLC's error register rely on them.
 """
 
@@ -141,6 +141,52 @@ class RobotMessageInvalid(RobotError):
 
     code = "ROBOT_MESSAGE_INVALID"
     plc_code = 428
+
+
+# --- PLC (450-469) ----------------------------------------------------------------------------
+
+
+class PlcError(DeviceError):
+    """The line's PLC broke the handshake of ``docs/plc-interface.md``; the message names the register."""
+
+    code = "PLC_ERROR"
+    plc_code = 450
+
+
+class PlcValueInvalid(PlcError):
+    """A register the PLC writes holds a value the contract does not allow (an undefined control bit, job
+    number 0); the message names the register and the value. Nothing in it was used."""
+
+    code = "PLC_VALUE_INVALID"
+    plc_code = 451
+
+
+class PlcHeartbeatLost(PlcError):
+    """The PLC's heartbeat (register 2) did not change within ``[plc] heartbeat_timeout_s``: FAULT."""
+
+    code = "PLC_HEARTBEAT_LOST"
+    plc_code = 452
+
+
+class PlcTriggerDropped(PlcError):
+    """The PLC dropped TRIGGER while the cycle was busy: the cycle was aborted, nothing written to the robot."""
+
+    code = "PLC_TRIGGER_DROPPED"
+    plc_code = 453
+
+
+class PlcAckTimeout(PlcError):
+    """The PLC did not set RESULT_ACK and drop TRIGGER within the configured time after DONE."""
+
+    code = "PLC_ACK_TIMEOUT"
+    plc_code = 454
+
+
+class PlcUnknownJob(PlcError):
+    """The job number (register 1) selects no part entry of the config; the message names it."""
+
+    code = "PLC_UNKNOWN_JOB"
+    plc_code = 455
 
 
 class ConfigError(MonoguideError):

@@ -39,7 +39,7 @@ log = logging.getLogger(__name__)
 POLL_S = 0.01
 MAX_SEQUENCE = 2**31 - 1  # an int32 register; the sequence wraps to 1, never 0 (0: nothing requested)
 
-# What the robot program answers in its status (UR: output_int_register_26, KUKA: <Ack Status=...>)
+# What the robot program answers in its status (UR: output_int_register_38, KUKA: <Handshake Status=...>)
 PROGRAM_OK = 0
 PROGRAM_BUSY = 1
 PROGRAM_UNKNOWN_COMMAND = -1
@@ -53,7 +53,7 @@ PROGRAM_STATUS_TEXT = {
     PROGRAM_OFFSET_REJECTED: "offset outside the program's limits",
 }
 
-# The commands a request carries (UR: input_int_register_25, KUKA: <Command>)
+# The commands a request carries (UR: input_int_register_25, KUKA: <Request Command=...>)
 COMMAND_NONE = 0
 COMMAND_GOTO = 1
 COMMAND_OFFSET = 2

@@ -1,4 +1,4 @@
 """Pure math of monoguide: frames, camera model, hole centres, pose, uncertainty, planning, base offset.
 
-No I/O and no clocks live here; see ``../shared/DESIGN.md``.
+No I/O and no clocks live here; see ``docs/design.md``.
 """

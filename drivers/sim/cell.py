@@ -96,11 +96,9 @@ class SimCell:
     def new_part(self, rng: np.random.Generator | None = None) -> np.ndarray:
         """Put a new part in the cell, deviated from the reference by a random draw within the configured
         ranges; returns its true pose ``T_cf_w``."""
-        rng = rng if rng is not None else self.rng
         s = self.spec
-        t = rng.uniform(-1.0, 1.0, 3) * np.asarray(s.deviation_translation_mm, dtype=float)
-        r = np.radians(rng.uniform(-1.0, 1.0, 3) * np.asarray(s.deviation_rotation_deg, dtype=float))
-        self.set_part_pose(compose(s.T_cf_w0, part_deviation(r, t, s.points_w.mean(axis=0))))
+        self.set_part_pose(deviated_part(rng if rng is not None else self.rng, s.T_cf_w0, s.points_w.mean(axis=0),
+                                         s.deviation_translation_mm, s.deviation_rotation_deg))
         return self.T_cf_w_true
 
     def reference_part(self) -> np.ndarray:
@@ -202,6 +200,11 @@ class SimCell:
             "T_b_w0": self.T_b_w0().tolist(),
             "T_b_w": self.T_b_w_true().tolist(),
             "T_b_g0": self.T_b_g0().tolist(),
+            "part_supply": {  # what the controller needs to present new parts (drivers/sim/part_supply.py)
+                "T_cf_b": s.T_cf_b.tolist(), "T_cf_w0": s.T_cf_w0.tolist(),
+                "centre_w": s.points_w.mean(axis=0).tolist(),
+                "translation_mm": list(s.deviation_translation_mm), "rotation_deg": list(s.deviation_rotation_deg),
+            },
         }
         tmp = path.with_name(path.name + ".tmp")
         tmp.write_text(json.dumps(data, indent=1))
@@ -253,6 +256,15 @@ class SimCell:
         if not 0 <= i < len(self.spec.T_cf_si):
             raise ValueError(f"measuring pose {i} does not exist (the cell has {len(self.spec.T_cf_si)})")
         return i
+
+
+def deviated_part(rng: np.random.Generator, T_cf_w0: np.ndarray, centre_w: np.ndarray,
+                  translation_mm: tuple[float, ...], rotation_deg: tuple[float, ...]) -> np.ndarray:
+    """``T_cf_w`` of a part deviated from the reference ``T_cf_w0`` by a uniform draw within +-``translation_mm``
+    and +-``rotation_deg`` (per axis of the part frame, rotation about ``centre_w``)."""
+    t = rng.uniform(-1.0, 1.0, 3) * np.asarray(translation_mm, dtype=float)
+    r = np.radians(rng.uniform(-1.0, 1.0, 3) * np.asarray(rotation_deg, dtype=float))
+    return compose(T_cf_w0, part_deviation(r, t, centre_w))
 
 
 def part_deviation(rotvec_rad: np.ndarray, translation_mm: np.ndarray, centre_w: np.ndarray) -> np.ndarray:

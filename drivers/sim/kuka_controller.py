@@ -21,6 +21,7 @@ import numpy as np
 
 from monoguide.drivers import kuka_protocol as kuka
 from monoguide.drivers.errors import RobotMessageInvalid
+from monoguide.drivers.sim import part_supply
 from monoguide.drivers.sim.robot_motion import (
     FAULT_MODES,
     SimRobotProgram,
@@ -129,11 +130,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--move-time", type=float, default=0.5, help="seconds per move to a measuring pose")
     parser.add_argument("--fault", default="none", choices=FAULT_MODES)
     parser.add_argument("--seed", type=int, default=None)
+    part_supply.add_arguments(parser)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="sim-kuka: %(message)s")
     spec = load_robot_spec(args.spec)
     program = SimRobotProgram(spec, np.random.default_rng(spec.seed + 3 if args.seed is None else args.seed),
-                              args.move_time, args.fault)
+                              args.move_time, args.fault, supply=part_supply.from_arguments(args))
     controller = KukaController(program, args.spec, args.truth)
     return asyncio.run(serve_controller(controller.serve_client, args.host, args.port, controller.run_program,
                                         controller.drop_all))

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import json
 import logging
 import math
@@ -42,6 +43,7 @@ from monoguide.drivers.robot import (
     PROGRAM_UNKNOWN_COMMAND,
 )
 from monoguide.drivers.sim.cell import ROBOT_SPEC_FORMAT, SimCell
+from monoguide.drivers.sim.part_supply import PartSupply
 from monoguide.solver.frames import (
     compose,
     invert,
@@ -99,6 +101,7 @@ class SimRobotProgram:
     requests: int = 0
     offsets: list[AppliedOffset] = field(default_factory=list)
     stops: dict[int, np.ndarray] = field(default_factory=dict)
+    supply: PartSupply | None = None  # presents a new part at each request of measuring pose 1
     _move: tuple[float, np.ndarray, np.ndarray, int, int] | None = None  # start, from, to, number, seq
 
     def __post_init__(self) -> None:
@@ -137,6 +140,8 @@ class SimRobotProgram:
             if not 1 <= pose_number <= len(self.spec.T_b_f_taught):
                 self._answer(sequence, PROGRAM_BAD_POSE)
                 return True
+            if pose_number == 1 and self.supply is not None:  # a cycle starts: the next part arrives
+                self.spec = dataclasses.replace(self.spec, T_b_w=self.supply.arrive(), part=self.supply.part)
             self.in_position = 0
             self.program_status = PROGRAM_BUSY
             self._move = (now, self.T_b_f.copy(), self._stop_at(pose_number), pose_number, sequence)
@@ -175,6 +180,7 @@ class SimRobotProgram:
             "part": self.spec.part,
             "in_position": self.in_position,
             "T_b_f": self.T_b_f.tolist(),
+            **({"T_cf_w": self.supply.T_cf_w.tolist()} if self.supply is not None else {}),
             "stops": {str(k): T.tolist() for k, T in self.stops.items()},
             "offsets": [
                 {"sequence": o.sequence, "part": o.part, "received": list(o.received), "D_b": o.D_b.tolist(),
@@ -195,6 +201,8 @@ class SimRobotProgram:
         error_mm, error_deg = grasp_error(D_b, self.spec.T_b_g0, self.spec.T_b_w, self.spec.T_b_w0)
         self.offsets.append(AppliedOffset(sequence, self.spec.part, received, np.array(D_b, dtype=float),
                                           error_mm, error_deg))
+        if self.supply is not None:
+            self.supply.offset_applied(self.spec.part, D_b, error_mm, error_deg)
         log.info("offset %d for part %d: grasp error %.4f mm %.5f deg", sequence, self.spec.part, error_mm,
                  error_deg)
         if self.fault != "no-ack":
@@ -222,19 +230,23 @@ async def run_program(program: SimRobotProgram, spec_path: Path, truth_path: Pat
             write_truth(truth_path, program.truth())
         with contextlib.suppress(asyncio.TimeoutError):
             await asyncio.wait_for(stop.wait(), period_s)
+    if program.supply is not None:  # the controller stops: the part in the cell leaves
+        program.supply.close()
 
 
 async def serve_controller(client_handler: Callable[..., object], host: str, port: int,
                            program: Callable[[asyncio.Event], object], drop_all: Callable[[], None]) -> int:
     """Listen on ``host:port``, print ``LISTEN robot host:port``, run the program loop, until SIGTERM/SIGINT
     or until the parent process is gone; then close every connection."""
+    # noted before LISTEN is printed: the parent may act on that line and die at once (a test killing a
+    # sim-cell), and a parent noted after its death would be init's pid, never gone: an orphan for good
+    parent = os.getppid()
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for s in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(s, stop.set)
     server = await asyncio.start_server(client_handler, host, port, reuse_address=True)  # type: ignore[arg-type]
     print(f"LISTEN robot {host}:{port}", flush=True)
-    parent = os.getppid()
     task = loop.create_task(program(stop))  # type: ignore[arg-type]
     while not stop.is_set() and os.getppid() == parent:
         with contextlib.suppress(asyncio.TimeoutError):
@@ -279,8 +291,11 @@ def read_truth(path: Path) -> dict[str, object]:
 
 def follow_truth(cell: SimCell, path: Path) -> int:
     """Let an in-process :class:`SimCell` (the simulated camera's) stand where the simulated controller's robot
-    stands: every stop it made, then its current measuring pose. Returns that pose number (0: moving)."""
+    stands: every stop it made, then its current measuring pose; and hold the part the controller's part
+    supply presents (``T_cf_w``), when it has one. Returns that pose number (0: moving)."""
     truth = read_truth(path)
+    if truth.get("T_cf_w") is not None:
+        cell.set_part_pose(np.asarray(truth["T_cf_w"], dtype=float))
     stops = {int(k): np.asarray(T, dtype=float) for k, T in truth["stops"].items()}  # type: ignore[union-attr]
     current = int(truth["in_position"])  # type: ignore[call-overload]
     for number in sorted(stops, key=lambda k: k == current):  # the current stop last: it sets current_pose

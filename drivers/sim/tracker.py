@@ -92,16 +92,19 @@ def main(argv: list[str] | None = None) -> int:
     # a client that stops reading must not block the simulator (and its SIGTERM) in os.write
     os.set_blocking(master, False)
     stop = _install_stop_handlers()
+    # noted before LISTEN: a parent that acts on that line and dies at once must still be seen to be gone
+    parent = os.getppid()
     print(f"LISTEN tracker {os.ttyname(slave)}", flush=True)
-    serve(master, state, args.targets, stop)
+    serve(master, state, args.targets, stop, parent)
     os.close(master)
     os.close(slave)
     return 0
 
 
-def serve(master: int, state: TrackerState, targets_path: Path, stop: list[bool]) -> None:
-    """Answer requests on the pty ``master`` until ``stop[0]`` or until the parent process ends."""
-    parent = os.getppid()
+def serve(master: int, state: TrackerState, targets_path: Path, stop: list[bool], parent: int | None = None) -> None:
+    """Answer requests on the pty ``master`` until ``stop[0]`` or until the ``parent`` process (default: the
+    current parent) ends."""
+    parent = os.getppid() if parent is None else parent
     mtime = _mtime(targets_path)
     buffer = bytearray()
     while not stop[0] and os.getppid() == parent:

@@ -19,6 +19,7 @@ from monoguide.solver.planning.errors import (
     LayoutOutOfReach,
     LayoutOutOfView,
     LayoutRequestInvalid,
+    LayoutStandoff,
     LayoutTooFewPoints,
     LayoutViewAngle,
 )
@@ -53,6 +54,7 @@ __all__ = [
     "LayoutOutOfView",
     "LayoutRequest",
     "LayoutRequestInvalid",
+    "LayoutStandoff",
     "LayoutTooFewPoints",
     "LayoutViewAngle",
     "PoseSigmas",

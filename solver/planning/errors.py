@@ -60,6 +60,13 @@ class LayoutOutOfReach(LayoutInfeasible):
     plc_code = 516
 
 
+class LayoutStandoff(LayoutInfeasible):
+    """The standoff range binds: other standoffs would hold every other constraint over the envelope."""
+
+    code = "LAYOUT_STANDOFF"
+    plc_code = 518
+
+
 class LayoutConstraintsConflict(LayoutInfeasible):
     """Several constraints bind together: relaxing any single one of them is not enough."""
 

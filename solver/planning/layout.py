@@ -36,6 +36,7 @@ from monoguide.solver.planning.errors import (
     LayoutInfeasible,
     LayoutOutOfReach,
     LayoutOutOfView,
+    LayoutStandoff,
     LayoutViewAngle,
 )
 from monoguide.solver.planning.prediction import layout_covariance, pose_sigmas
@@ -49,6 +50,7 @@ REFINE_AZIMUTH_DEG = 20.0  # first azimuth step of the refinement (then halved e
 _NAMES = {"margin": "margin_px", "depth_of_field": "depth_of_field_mm", "view_angle": "max_view_angle_envelope_deg",
           "reach": "reach"}  # the request's names of the constraints, as refusals say them
 ROLL_STEPS = 90  # roll candidates over half a turn when fitting a sweep to the image
+WIDE_STANDOFFS_MM = np.geomspace(50.0, 5000.0, 30)  # tried when no constraint binds alone: does the standoff?
 KINDS = ("margin", "depth_of_field", "view_angle", "reach")  # constraints checked over the envelope
 
 
@@ -299,14 +301,45 @@ class _Planner:
         if not binding:
             _, misses = min(records, key=lambda r: sum(max(v, 0.0) for m in r[1] for v in m.values()))
             violated = [_NAMES[k] for k in KINDS if worst(misses, [k]) > 0]
+            low, high = self.request.constraints.standoff_mm
+            if (elsewhere := self._feasible_standoffs()) is not None:
+                return LayoutStandoff(
+                    f"standoff_mm = [{low:g}, {high:g}]: no measuring pose in that range satisfies "
+                    f"{', '.join(violated)} over the envelope {envelope}; every hole can be held at standoffs "
+                    f"of {elsewhere[0]:.0f}-{elsewhere[1]:.0f} mm: widen the range"
+                )
             return LayoutConstraintsConflict(
-                f"no measuring layout satisfies {', '.join(violated)} together over the envelope {envelope}; "
-                "relaxing any one of them alone is not enough"
+                f"no measuring layout satisfies {', '.join(violated)} together over the envelope {envelope}, at the "
+                f"allowed standoffs {low:g}-{high:g} mm nor at any from {WIDE_STANDOFFS_MM[0]:g} to "
+                f"{WIDE_STANDOFFS_MM[-1]:g} mm; relaxing any one of them alone is not enough: narrow the envelope "
+                "or relax several"
             )
         kind = binding[0]
         placement, misses = min(records, key=lambda r: worst(r[1], [kind]))
         i = int(np.argmax([m[kind] for m in misses]))
         return self._message(kind, i, placement, misses[i])
+
+    def _feasible_standoffs(self) -> tuple[float, float] | None:
+        """(lowest, highest) standoff, mm, of :data:`WIDE_STANDOFFS_MM` (and a fine grid over the depth of
+        field) at which a hole holds every other constraint, at the first grid tilt and azimuth where every
+        hole does at some standoff; None when there is no such tilt (the standoff range is not what binds)."""
+        c = self.request.constraints
+        max_tilt = math.radians(c.max_view_angle_deg)
+        # a hole's depth is about its standoff: look closely (25 mm steps) inside the depth of field
+        near, far = c.depth_of_field_mm
+        standoffs = np.union1d(WIDE_STANDOFFS_MM, np.linspace(near, far, max(2, int((far - near) / 25.0) + 1)))
+        for azimuth in (0.0, math.pi):
+            for tilt in np.linspace(0.0, max_tilt, GRID_TILTS) if max_tilt > 0 else np.zeros(1):
+                held: list[float] = []
+                for i in range(len(self.points)):
+                    mine = [float(s) for s in standoffs if max(self.violations(
+                        i, self.camera_pose(i, CameraPlacement(tilt, azimuth, s))[0]).values()) <= 0.0]
+                    if not mine:
+                        break  # this hole cannot be held at this tilt: the others need not be tried
+                    held += mine
+                else:
+                    return min(held), max(held)  # the first tilt that holds every hole is example enough
+        return None
 
     def _message(self, kind: str, i: int, placement: CameraPlacement, miss: dict[str, float]) -> LayoutInfeasible:
         c, name = self.request.constraints, self.names[i]

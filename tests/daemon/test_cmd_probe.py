@@ -32,7 +32,8 @@ runner = CliRunner()
 def sim_cell(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], Path, str]]:
     """A running ``monoguide sim-cell`` with its state file in ``tmp_path``; stopped (SIGTERM) at teardown."""
     state = tmp_path / "state.json"
-    process = subprocess.Popen([sys.executable, "-m", "monoguide.daemon.cli", "sim-cell", "--config", str(SIM_CELL),
+    config = _own_addresses(tmp_path)
+    process = subprocess.Popen([sys.executable, "-m", "monoguide.daemon.cli", "sim-cell", "--config", str(config),
                                 "--state-file", str(state)], stdout=subprocess.PIPE, text=True)
     assert process.stdout is not None
     ready, _, _ = select.select([process.stdout], [], [], 20.0)
@@ -50,6 +51,16 @@ def sim_cell(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], Path, str]
                 process.kill()
                 process.wait(5)
         process.stdout.close()
+
+
+def _own_addresses(tmp_path: Path) -> Path:
+    """A copy of the simulated cell whose robot and PLC listen on this module's own loopback address, so a
+    simulator left over from another test (or another run) cannot answer in its place."""
+    text = SIM_CELL.read_text().replace('host = "127.0.0.1"', 'host = "127.0.0.61"')
+    assert text.count('host = "127.0.0.61"') >= 1
+    config = tmp_path / "sim-cell.toml"
+    config.write_text(text)
+    return config
 
 
 def test_probe_sim_camera_saves_the_rendered_frame(tmp_path: Path) -> None:

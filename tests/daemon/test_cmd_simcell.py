@@ -1,17 +1,30 @@
-"""`monoguide sim-cell`'s one-per-state-file claim (issue 7, item 11): real processes started together."""
+"""`monoguide sim-cell`: its one-per-state-file claim (issue 7, item 11), its PLC and its part supply (issue 10),
+with real processes."""
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import json
 import os
 import select
 import signal
+import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
+
+from monoguide.daemon.assembly import build_robot, build_sim_cell
+from monoguide.daemon.config import CellConfig, load_cell_config
+from monoguide.drivers.modbus_plc import ModbusPlc
+from monoguide.drivers.plc_registers import PlcInputs, PlcOutputs
+from monoguide.drivers.sim.robot_motion import follow_truth
+from monoguide.solver.frames import T_to_kuka_frame, invert, matrix_to_rotvec, transform_points
 
 SIM_CELL = Path(__file__).parents[2] / "config" / "sim-cell.toml"
 START_S = 40.0  # two cells built at once on a shared machine
@@ -74,9 +87,15 @@ def test_a_state_file_left_by_a_killed_sim_cell_is_taken_over(tmp_path: Path) ->
     first = _sim_cell(state)
     try:
         assert _first_line(first).startswith("tracker listening on")
+        while "plc" not in (running := json.loads(state.read_text() if state.exists() else "{}")):
+            time.sleep(0.05)
         first.send_signal(signal.SIGKILL)  # no clean-up: its state file and lock file stay behind
         first.wait(10)
         assert state.exists()
+        deadline = time.monotonic() + 3.0
+        while _alive(running["plc"]["pid"]) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not _alive(running["plc"]["pid"]), "the simulated PLC outlived its killed sim-cell"
     finally:
         _stop(first)
     second = _sim_cell(state)
@@ -101,3 +120,186 @@ def test_a_directory_where_the_state_file_goes_is_a_clear_config_error(tmp_path:
     assert "CONFIG_INVALID" in message and "is a directory" in message and str(tmp_path / which) in message
     assert "Traceback" not in message
     assert (tmp_path / which).is_dir() and os.listdir(tmp_path / which) == []  # left as it was
+
+
+# --- the simulated PLC and the part supply (issue 10) ------------------------------------------
+
+
+def _cell_config(tmp_path: Path, robot_host: str, plc_host: str) -> Path:
+    """config/sim-cell.toml with this test's own robot and PLC addresses and quick robot moves."""
+    text = SIM_CELL.read_text()
+    for old, new in (('host = "127.0.0.1"  # where', f'host = "{robot_host}"  # where'),
+                     ('host = "127.0.0.1"  # the simulated PLC', f'host = "{plc_host}"  # the simulated PLC'),
+                     ("sim_move_time_s = 0.5", "sim_move_time_s = 0.05")):
+        assert text.count(old) == 1, old
+        text = text.replace(old, new)
+    path = tmp_path / "cell.toml"
+    path.write_text(text)
+    return path
+
+
+def _run_sim_cell(config: Path, state: Path, *options: str) -> tuple[subprocess.Popen[str], list[str]]:
+    """Start sim-cell; its stdout lines up to the state file's (it runs then)."""
+    process = subprocess.Popen([sys.executable, "-m", "monoguide.daemon.cli", "sim-cell", "--config", str(config),
+                                "--state-file", str(state), *options], stdout=subprocess.PIPE,
+                               stderr=subprocess.DEVNULL, text=True)
+    assert process.stdout is not None
+    lines: list[str] = []
+    watchdog = threading.Timer(START_S, process.kill)  # readline, not select: lines wait in the text buffer
+    watchdog.start()
+    try:
+        while not lines or not lines[-1].startswith("state file"):
+            line = process.stdout.readline()
+            if not line:
+                _stop(process)
+                pytest.fail(f"sim-cell did not start: {lines}")
+            lines.append(line.strip())
+    finally:
+        watchdog.cancel()
+    return process, lines
+
+
+def _stop_cell(process: subprocess.Popen[str], pids: list[int]) -> None:
+    """Stop sim-cell and prove that none of its device processes outlived it (SIGKILL any that did)."""
+    assert _stop(process) == 0
+    deadline = time.monotonic() + 5.0
+    alive = pids
+    while alive and time.monotonic() < deadline:
+        alive = [pid for pid in pids if _alive(pid)]
+        time.sleep(0.05)
+    for pid in alive:
+        os.kill(pid, signal.SIGKILL)
+    assert not alive, f"sim-cell left device processes behind: {alive}"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    with contextlib.suppress(FileNotFoundError):
+        return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z"  # a zombie is gone
+    return False
+
+
+def _within_envelope(T_cf_w: np.ndarray, cfg: CellConfig) -> bool:
+    assert cfg.sim is not None
+    T_w0_w = invert(cfg.reference.T_cf_w0) @ T_cf_w
+    centroid = cfg.part.points_w.mean(axis=0)
+    rot_deg = np.degrees(np.abs(matrix_to_rotvec(T_w0_w[:3, :3])))
+    shift = transform_points(T_w0_w, centroid[None])[0] - centroid
+    return bool(np.all(rot_deg <= np.array(cfg.sim.deviation_rotation_deg) * 1.01)
+                and np.all(np.abs(shift) <= np.array(cfg.sim.deviation_translation_mm) + 1e-9)
+                and np.linalg.norm(shift) > 1e-3)
+
+
+def test_sim_cell_runs_the_plc_and_a_part_supply_with_a_truth_log(tmp_path: Path) -> None:
+    config, state, truth_log = _cell_config(tmp_path, "127.0.3.1", "127.0.3.2"), tmp_path / "s.json", \
+        tmp_path / "truth.jsonl"
+    cfg = load_cell_config(config)
+    process, lines = _run_sim_cell(config, state, "--truth-log", str(truth_log))
+    pids: list[int] = []
+    try:
+        running = json.loads(state.read_text())
+        pids = [running["tracker"]["pid"], running["robot"]["pid"], running["plc"]["pid"]]
+        assert f"plc listening on 127.0.3.2:5020 unit 1 (pid {running['plc']['pid']})" in lines
+        assert running["plc"] == {"host": "127.0.3.2", "port": 5020, "pid": pids[2]}
+
+        async def read_plc() -> tuple[PlcInputs, PlcInputs, PlcOutputs]:
+            plc = ModbusPlc("127.0.3.2", 5020, unit=1)
+            await plc.connect()
+            try:
+                first = await plc.read_inputs()
+                await asyncio.sleep(1.2)  # the simulated PLC beats every 0.5 s
+                return first, await plc.read_inputs(), await plc.read_outputs()
+            finally:
+                await plc.close()
+
+        first, later, outputs = asyncio.run(read_plc())
+        assert later.plc_heartbeat != first.plc_heartbeat
+        assert (later.job, later.part_tag) == (1, 1001)  # the line's first part arrived, waiting for READY
+        assert outputs.status == 0 and outputs.heartbeat == 0  # nobody has written monoguide's block
+
+        robot = build_robot(cfg, state)
+        robot.open()
+        camera_cell = build_sim_cell(cfg)  # the simulated camera's truth, in this process
+        truth_file = Path(running["robot"]["truth"])
+        try:
+            robot.move_to_measuring_pose(0)  # cycle 1: part 1 arrives
+            follow_truth(camera_cell, truth_file)
+            T_cf_w1 = camera_cell.T_cf_w_true
+            robot.move_to_measuring_pose(1)  # S2 in the same cycle: the same part
+            follow_truth(camera_cell, truth_file)
+            np.testing.assert_array_equal(camera_cell.T_cf_w_true, T_cf_w1)
+            T_cf_b, T_cf_w0 = cfg.reference.T_cf_b, cfg.reference.T_cf_w0
+            assert T_cf_b is not None
+            D_ideal = invert(T_cf_b) @ T_cf_w1 @ invert(T_cf_w0) @ T_cf_b  # T_b_w inv(T_b_w0)
+            robot.write_base_offset(D_ideal)
+            robot.move_to_measuring_pose(0)  # cycle 2: part 2 arrives, no offset written for it
+            follow_truth(camera_cell, truth_file)
+            T_cf_w2 = camera_cell.T_cf_w_true
+        finally:
+            robot.close()
+    finally:
+        _stop_cell(process, pids)
+
+    parts = [json.loads(line) for line in truth_log.read_text().splitlines()]
+    assert [p["part"] for p in parts] == [1, 2]
+    np.testing.assert_allclose(np.array(parts[0]["T_cf_w"]), T_cf_w1, atol=1e-9)  # the camera saw these parts
+    np.testing.assert_allclose(np.array(parts[1]["T_cf_w"]), T_cf_w2, atol=1e-9)
+    assert not np.allclose(T_cf_w1, T_cf_w2)
+    assert _within_envelope(T_cf_w1, cfg) and _within_envelope(T_cf_w2, cfg)
+    ideal = np.array(T_to_kuka_frame(D_ideal))
+    np.testing.assert_allclose(parts[0]["offset_ideal"], ideal, atol=1e-6)
+    np.testing.assert_allclose(parts[0]["offset_written"], ideal, atol=1e-6)
+    assert parts[0]["grasp_error_mm"] < 1e-6 and parts[0]["grasp_error_deg"] < 1e-6
+    assert parts[1]["offset_written"] is None and parts[1]["grasp_error_mm"] is None
+    assert np.linalg.norm(np.array(parts[1]["offset_ideal"])[:3]) > 1.0  # a deviated part needs an offset
+
+
+def test_no_plc_leaves_the_plc_address_to_another_server(tmp_path: Path) -> None:
+    config, state = _cell_config(tmp_path, "127.0.3.3", "127.0.3.4"), tmp_path / "s.json"
+    with socket.socket() as other_plc:  # a PLC programmer's own server, there first
+        other_plc.bind(("127.0.3.4", 5020))
+        other_plc.listen()
+        process, lines = _run_sim_cell(config, state, "--no-plc")
+        running = json.loads(state.read_text())
+        try:
+            assert "plc" not in running
+            assert "plc left out (--no-plc): 127.0.3.4:5020 is free for another server" in lines
+            time.sleep(0.3)
+            assert process.poll() is None
+        finally:
+            _stop_cell(process, [running["tracker"]["pid"], running["robot"]["pid"]])
+
+
+def test_truth_log_needs_a_simulated_robot(tmp_path: Path) -> None:
+    text = SIM_CELL.read_text().replace('backend = "sim-ur"', 'backend = "ur"')
+    config = tmp_path / "cell.toml"
+    config.write_text(text)
+    process = subprocess.Popen([sys.executable, "-m", "monoguide.daemon.cli", "sim-cell", "--config", str(config),
+                                "--state-file", str(tmp_path / "s.json"), "--truth-log", str(tmp_path / "t.jsonl")],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert process.wait(START_S) == 2
+        assert process.stderr is not None
+        message = process.stderr.read()
+    finally:
+        _stop(process)
+    assert "CONFIG_INVALID" in message and "--truth-log" in message and "sim-ur" in message
+    assert not (tmp_path / "t.jsonl").exists() and not (tmp_path / "s.json").exists()
+
+
+def test_the_part_supply_is_seeded_by_the_config(tmp_path: Path) -> None:
+    from monoguide.drivers.sim.part_supply import PartSupply  # tests may reach the simulator directly
+
+    cfg = load_cell_config(SIM_CELL)
+    spec = build_sim_cell(cfg).write_robot_spec(tmp_path / "robot.json")
+    first, again = (PartSupply.from_spec_file(spec, None) for _ in range(2))
+    parts = [first.arrive() for _ in range(3)]
+    np.testing.assert_array_equal(np.array(parts), np.array([again.arrive() for _ in range(3)]))
+    assert all(_within_envelope(first.T_cf_b @ T_b_w, cfg) for T_b_w in parts)
+    assert not np.allclose(parts[0], parts[1]) and not np.allclose(parts[1], parts[2])
+    data = json.loads(spec.read_text())
+    other = PartSupply(data["seed"] + 1, data["part_supply"], np.array(data["T_b_g0"]), None)
+    assert not np.allclose(other.arrive(), parts[0])

@@ -212,7 +212,8 @@ def test_unknown_keys_in_the_sim_section_and_its_tables(tmp_path: Path) -> None:
         ("[camera]\n", "[camra]\n", r"unknown section \[camra\]; did you mean \[camera\]\?"),  # not "[camera] missing"
         ("[[measuring_poses]]", "[[measuring_pose]]",
          r"unknown section \[measuring_pose\]; did you mean \[measuring_poses\]"),
-        ("[cell]", '[plc]\nhost = "10.0.0.5"\n[cell]', r"unknown section \[plc\]; known sections: \[.*'\[tracker\]'"),
+        ("[cell]", '[conveyor]\nhost = "10.0.0.5"\n[cell]',
+         r"unknown section \[conveyor\]; known sections: \[.*'\[tracker\]'"),
     ],
 )
 def test_an_unknown_section_is_an_error_suggesting_the_closest(tmp_path: Path, old: str, new: str,

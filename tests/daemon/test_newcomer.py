@@ -18,9 +18,17 @@ DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 def test_docs_point_inside_the_repository(doc):
     text = doc.read_text()
     assert "../shared" not in text and "shared/seed" not in text
-    for target in re.findall(r"\]\(([^)#]+)\)", text):  # markdown links
+    for target in re.findall(r"\]\(([^)#\s]+)(?:#[^)\s]*)?\)", text):  # markdown links, anchors too
         if not re.match(r"[a-z]+:", target):
             assert (doc.parent / target).exists(), f"{doc.name} links to {target}, which does not exist"
+
+
+def test_sources_point_inside_the_repository():
+    for path in sorted(ROOT.glob("*/**/*.py")) + sorted(ROOT.glob("config/**/*.toml")):
+        if ".venv" in path.parts or "build" in path.parts or path.name == "test_newcomer.py":
+            continue
+        text = path.read_text()
+        assert "../shared" not in text and "shared/DESIGN" not in text and "shared/seed" not in text, path
 
 
 def test_readme_example_outputs_are_ignored_by_git():

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import itertools
-import json
 import socket
 import time
 from collections.abc import Iterator
@@ -11,37 +10,34 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from monoguide.daemon.assembly import build_sim_cell
-from monoguide.daemon.config import load_cell_config
-from monoguide.drivers.errors import (
-    DeviceDisconnected,
-    DeviceError,
-    DeviceNotFound,
-    DeviceTimeout,
-    RobotAckTimeout,
-    RobotCommandRejected,
-    RobotNotReady,
-    RobotPoseMismatch,
-    RobotPositionTimeout,
-    RobotProtectiveStop,
+from robot_helpers import (
+    ADAPTER_OPTIONS,
+    FAILURE_MODES,
+    assert_within_repeatability,
+    check_failure_mode,
+    lose_connection,
+    offsets_recorded,
+    sim_cell,
+    stopping,
+    taught_poses,
+    truth,
 )
+from scipy.spatial.transform import Rotation
+
+from monoguide.drivers.errors import DeviceError, DeviceNotFound, RobotCommandRejected, RobotPoseMismatch
 from monoguide.drivers.kuka_robot import KukaRobot
 from monoguide.drivers.robot import Robot
 from monoguide.drivers.sim.cell import SimCell
 from monoguide.drivers.sim.robot_process import ControllerProcess, start_controller
 from monoguide.solver.errors import NotARotation
-from monoguide.solver.frames import T_to_kuka_frame, compose, invert, make_T, pose_difference, rotvec_to_matrix
+from monoguide.solver.frames import T_to_kuka_frame, compose, invert, make_T, rotvec_to_matrix
 
-SIM_CELL = Path(__file__).parents[2] / "config" / "sim-cell.toml"
 _addresses = itertools.count(90)
 
 
 @pytest.fixture(scope="module")
 def cell() -> SimCell:
-    c = build_sim_cell(load_cell_config(SIM_CELL))
-    c.new_part()
-    return c
+    return sim_cell()
 
 
 @pytest.fixture
@@ -56,38 +52,18 @@ def start(spec: Path, fault: str = "none") -> ControllerProcess:
 
 @pytest.fixture
 def controller(spec: Path) -> Iterator[ControllerProcess]:
-    c = start(spec)
-    try:
+    with stopping(start(spec)) as c:
         yield c
-    finally:
-        c.stop()
 
 
 def make_robot(cell: SimCell, c: ControllerProcess, **kw: float) -> KukaRobot:
-    taught = tuple(cell.T_b_f_taught(i) for i in range(cell.n_measuring_poses))
-    options = {"connect_timeout_s": 2.0, "move_timeout_s": 2.0, "ack_timeout_s": 0.5, "stale_timeout_s": 0.4,
-               "pose_tolerance_mm": 0.5, "pose_tolerance_deg": 0.1, **kw}
-    return KukaRobot(c.host, c.port, T_b_f_taught=taught, **options)  # type: ignore[arg-type]
+    return KukaRobot(c.host, c.port, T_b_f_taught=taught_poses(cell), **{**ADAPTER_OPTIONS, **kw})  # type: ignore[arg-type]
 
 
 @pytest.fixture
 def robot(cell: SimCell, controller: ControllerProcess) -> Iterator[KukaRobot]:
-    r = make_robot(cell, controller)
-    r.open()
-    try:
+    with make_robot(cell, controller) as r:
         yield r
-    finally:
-        r.close()
-
-
-def offsets_recorded(c: ControllerProcess, n: int) -> list[dict]:
-    deadline = time.monotonic() + 2.0
-    while time.monotonic() < deadline:
-        offsets = json.loads(c.truth.read_text())["offsets"]
-        if len(offsets) >= n:
-            return offsets
-        time.sleep(0.02)
-    pytest.fail(f"the simulated controller never recorded {n} offsets")
 
 
 def test_identity_status_and_the_port(robot: KukaRobot, controller: ControllerProcess) -> None:
@@ -95,18 +71,15 @@ def test_identity_status_and_the_port(robot: KukaRobot, controller: ControllerPr
     assert robot.identity is not None and robot.identity.vendor == "KUKA" and robot.identity.software == "KSS 8.6"
     status = robot.status()
     assert status.ready and status.mode == "AUT" and status.in_position == 1
-    np.testing.assert_allclose(status.T_b_f, np.array(json.loads(controller.truth.read_text())["T_b_f"]), atol=1e-9)
+    np.testing.assert_allclose(status.T_b_f, np.array(truth(controller)["T_b_f"]), atol=1e-9)
 
 
 def test_move_stops_at_the_taught_pose_within_repeatability(robot: KukaRobot, controller: ControllerProcess,
                                                             cell: SimCell) -> None:
     status = robot.move_to_measuring_pose(3)
     assert status.in_position == 4
-    np.testing.assert_allclose(status.T_b_f, np.array(json.loads(controller.truth.read_text())["stops"]["4"]),
-                               atol=1e-9)
-    angle_deg, distance_mm = pose_difference(status.T_b_f, cell.T_b_f_taught(3))
-    assert 0 < distance_mm < 6 * cell.spec.repeatability_mm * np.sqrt(3)
-    assert angle_deg < 6 * cell.spec.repeatability_deg * np.sqrt(3)
+    np.testing.assert_allclose(status.T_b_f, np.array(truth(controller)["stops"]["4"]), atol=1e-9)
+    assert_within_repeatability(cell, status.T_b_f, 3)
 
 
 def test_offset_arrives_as_one_frame_in_mm_and_abc_degrees(robot: KukaRobot, controller: ControllerProcess,
@@ -115,11 +88,12 @@ def test_offset_arrives_as_one_frame_in_mm_and_abc_degrees(robot: KukaRobot, con
     turn = make_T(rotvec_to_matrix(np.radians([0.0, 0.0, 0.01])), np.zeros(3))  # 0.01 deg about base z
     D_off = compose(turn, D_ideal)
     s1, s2 = robot.write_base_offset(D_ideal), robot.write_base_offset(D_off)
-    offsets = offsets_recorded(controller, 2)
-    assert [o["sequence"] for o in offsets] == [s1, s2] and {o["part"] for o in offsets} == {5}
+    offsets = offsets_recorded(controller, [s1, s2], 5, D_ideal)
     assert tuple(offsets[0]["received"]) == T_to_kuka_frame(D_ideal)  # exactly what was sent: mm, deg
-    np.testing.assert_allclose(np.array(offsets[0]["D_b"]), D_ideal, atol=1e-9)
-    assert offsets[0]["grasp_error_mm"] < 1e-9 and offsets[0]["grasp_error_deg"] < 1e-9
+    x, y, z, a, b, c = offsets[0]["received"]  # by scipy: A B C intrinsic Z-Y'-X'' in degrees
+    np.testing.assert_allclose(Rotation.from_euler("ZYX", [a, b, c], degrees=True).as_matrix(), D_ideal[:3, :3],
+                               rtol=0, atol=1e-12)
+    np.testing.assert_allclose([x, y, z], D_ideal[:3, 3], rtol=0, atol=1e-9)
     assert offsets[1]["grasp_error_deg"] == pytest.approx(0.01, abs=1e-9)
     T_b_g = compose(D_off, cell.T_b_g0())
     T_b_g_ideal = compose(D_ideal, cell.T_b_g0())
@@ -138,8 +112,7 @@ def test_unknown_pose_and_pose_mismatch(cell: SimCell, controller: ControllerPro
     with KukaRobot(controller.host, controller.port, move_timeout_s=1.0) as r, \
             pytest.raises(RobotCommandRejected, match="no such measuring pose"):
         r.move_to_measuring_pose(6)
-    wrong = tuple(compose(T, make_T(np.eye(3), np.array([0.0, 0.0, 5.0]))) for T in
-                  (cell.T_b_f_taught(i) for i in range(cell.n_measuring_poses)))
+    wrong = tuple(compose(T, make_T(np.eye(3), np.array([0.0, 0.0, 5.0]))) for T in taught_poses(cell))
     with KukaRobot(controller.host, controller.port, T_b_f_taught=wrong) as r, \
             pytest.raises(RobotPoseMismatch) as info:
         r.move_to_measuring_pose(0)
@@ -157,10 +130,7 @@ def test_reconnects_after_the_controller_restarted(spec: Path, cell: SimCell) ->
     try:
         r.open()
         c.stop()
-        with pytest.raises((DeviceDisconnected, DeviceTimeout)):
-            for _ in range(100):
-                r.status()
-                time.sleep(0.02)
+        lose_connection(r)
         c = start_controller("kuka", spec, c.truth, c.host, c.port, move_time_s=0.15)
         assert r.move_to_measuring_pose(2).in_position == 3
     finally:
@@ -168,28 +138,10 @@ def test_reconnects_after_the_controller_restarted(spec: Path, cell: SimCell) ->
         c.stop()
 
 
-@pytest.mark.parametrize(("fault", "action", "error"), [
-    ("stall", "move", DeviceTimeout),
-    ("drop", "move", DeviceDisconnected),
-    ("protective-stop", "move", RobotProtectiveStop),
-    ("never-reach", "move", RobotPositionTimeout),
-    ("no-ack", "offset", RobotAckTimeout),
-    ("program-stopped", "offset", RobotNotReady),
-])
+@pytest.mark.parametrize(("fault", "action", "error"), FAILURE_MODES)
 def test_failure_modes(spec: Path, cell: SimCell, fault: str, action: str, error: type[DeviceError]) -> None:
     c = start(spec, fault=fault)
-    r = make_robot(cell, c, move_timeout_s=0.6)
-    try:
-        r.open()
-        with pytest.raises(error) as info:
-            if action == "move":
-                r.move_to_measuring_pose(1)
-            else:
-                r.write_base_offset(np.eye(4))
-        assert info.value.code == error.code
-    finally:
-        r.close()
-        c.stop()
+    check_failure_mode(c, make_robot(cell, c, move_timeout_s=0.6), action, error)
 
 
 def test_an_offset_that_is_not_a_rigid_transform_is_never_sent(robot: KukaRobot, controller: ControllerProcess) -> None:
@@ -198,5 +150,5 @@ def test_an_offset_that_is_not_a_rigid_transform_is_never_sent(robot: KukaRobot,
     with pytest.raises(NotARotation, match="base offset"):
         robot.write_base_offset(sheared)
     time.sleep(0.1)
-    assert json.loads(controller.truth.read_text())["offsets"] == []
+    assert truth(controller)["offsets"] == []
     assert robot.status().ack_sequence == 0  # nothing was requested

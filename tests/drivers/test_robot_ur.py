@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from monoguide.daemon.assembly import build_sim_cell
 from monoguide.daemon.config import load_cell_config
@@ -166,6 +167,8 @@ def test_offset_arrives_in_one_package_in_metres_and_rotation_vector(robot: UrRo
     assert [o["sequence"] for o in offsets] == [s1, s2] and {o["part"] for o in offsets} == {42}
     np.testing.assert_allclose(offsets[0]["received"], T_to_ur_pose(D_ideal), rtol=0, atol=1e-15)
     assert abs(offsets[0]["received"][0] * 1000.0 - D_ideal[0, 3]) < 1e-9  # metres on the wire
+    rotation = Rotation.from_rotvec(offsets[0]["received"][3:]).as_matrix()  # radians, by scipy
+    np.testing.assert_allclose(rotation, D_ideal[:3, :3], rtol=0, atol=1e-12)
     np.testing.assert_allclose(np.array(offsets[0]["D_b"]), D_ideal, atol=1e-9)
     assert offsets[0]["grasp_error_mm"] < 1e-9 and offsets[0]["grasp_error_deg"] < 1e-9
     assert offsets[1]["grasp_error_mm"] == pytest.approx(0.3, abs=1e-9) and offsets[1]["grasp_error_deg"] < 1e-9

@@ -19,6 +19,7 @@ from monoguide.solver.planning import (
     LayoutOutOfView,
     LayoutRequest,
     LayoutRequestInvalid,
+    LayoutStandoff,
     LayoutTooFewPoints,
     LayoutViewAngle,
     ReachRegion,
@@ -56,13 +57,20 @@ def request(constraints: LayoutConstraints, envelope: DeviationEnvelope = PAPERS
         # 800 px of margin needs a long standoff, a far limit of 450 mm a short one
         (request(LayoutConstraints((150.0, 1000.0), 30.0, 800.0, (100.0, 450.0)), SMALL), LayoutConstraintsConflict,
          r"margin_px and depth_of_field_mm cannot hold together .* relaxing either would do"),
+        # 300-320 mm is too close for a depth of field of 450-900 mm; 650-700 mm would hold everything
+        (request(LayoutConstraints((300.0, 320.0), 30.0, 100.0, (450.0, 900.0))), LayoutStandoff,
+         r"standoff_mm = \[300, 320\]: .*every hole can be held at standoffs of \d+-\d+ mm: widen the range"),
+        # +-500 mm: no standoff at all keeps 100 px of margin inside a 450-900 mm depth of field
+        (request(LayoutConstraints((400.0, 1000.0), 30.0, 100.0, (450.0, 900.0)),
+                 DeviationEnvelope((500.0, 500.0, 500.0), (5.0, 5.0, 5.0))), LayoutConstraintsConflict,
+         r"margin_px, depth_of_field_mm together over the envelope ±500/500/500 mm.* nor at any from 50 to 5000 mm"),
         (request(LayoutConstraints(), points_w=PAPER_ROOF_POINTS_W[:2]), LayoutTooFewPoints,
          r"2 featured point\(s\)"),
         (request(LayoutConstraints(), points_w=np.array([[0.0, 0, 0], [500.0, 0, 0], [1000.0, 0, 0]])),
          LayoutTooFewPoints, r"lie on one line"),
     ],
     ids=["out of view", "depth of field", "view angle", "view angle over the envelope", "reach", "conflict",
-         "two holes", "collinear holes"],
+         "standoff", "envelope no standoff holds", "two holes", "collinear holes"],
 )
 def test_a_refusal_names_the_binding_constraint(the_request, error, says):
     with pytest.raises(error, match=says) as caught:
@@ -92,7 +100,7 @@ def test_an_unusable_request_is_refused_naming_the_value(changes, says):
 
 def test_layout_error_codes_are_unique_and_in_the_planning_range():
     layout_errors = [c for c in all_error_classes() if issubclass(c, LayoutInfeasible)]
-    assert len(layout_errors) == 8
+    assert len(layout_errors) == 9
     assert all(510 <= c.plc_code <= 529 for c in layout_errors)
     assert len({c.plc_code for c in layout_errors}) == len(layout_errors)
     others = [c for c in all_error_classes() if not issubclass(c, LayoutInfeasible)]

@@ -1,0 +1,111 @@
+"""The simulated cell's part supply, run by the simulated robot controller (``docs/probe.md``).
+
+Every cycle starts with a new part: when measuring pose 1 (S1) is requested, the part in the cell is
+replaced by part ``n + 1``, deviated from the reference within ``[sim.deviation]`` by a draw seeded with
+``([sim] seed, PART_STREAM, n + 1)`` — the same config gives the same parts in the same order, whatever else
+was drawn. The controller applies offsets to it and scores them; its truth file carries the part's
+``T_cf_w`` so that the simulated camera in another process sees the same part
+(:func:`monoguide.drivers.sim.robot_motion.follow_truth`).
+
+A part's line in the truth log (JSON lines) is written when its first offset is applied (the robot grasps
+it), else when it leaves the cell without one (the next part arrives, or the controller stops) with
+``offset_written`` ``null``. Offsets are the six numbers of PLC registers 16–27: x, y, z mm and A, B, C deg
+(Z-Y'-X'') in the robot base frame. The part the spec file gives (part 0, before the first S1 request) is
+not supplied and not logged.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from monoguide.drivers.sim.cell import deviated_part
+from monoguide.solver.frames import T_to_kuka_frame, compose, invert
+
+log = logging.getLogger("monoguide.sim.parts")
+
+PART_STREAM = 0x50415254  # "PART": the supply's own random stream, apart from the robot's repeatability draws
+
+
+class PartSupply:
+    """Presents seeded deviated parts and writes one truth-log line per part (``log_path``; None: no log)."""
+
+    def __init__(self, seed: int, supply: dict[str, object], T_b_g0: np.ndarray, log_path: Path | None) -> None:
+        self.seed = seed
+        self.T_cf_b = np.asarray(supply["T_cf_b"], dtype=float)
+        self.T_cf_w0 = np.asarray(supply["T_cf_w0"], dtype=float)
+        self.centre_w = np.asarray(supply["centre_w"], dtype=float)
+        self.translation_mm = tuple(float(v) for v in supply["translation_mm"])  # type: ignore[attr-defined]
+        self.rotation_deg = tuple(float(v) for v in supply["rotation_deg"])  # type: ignore[attr-defined]
+        self.T_b_w0 = compose(invert(self.T_cf_b), self.T_cf_w0)
+        self.T_b_g0 = np.asarray(T_b_g0, dtype=float)
+        self.log_path = log_path
+        self.part = 0
+        self.T_cf_w = self.T_cf_w0.copy()
+        self._logged = True  # part 0 is not the supply's
+        if log_path is not None:
+            log_path.write_text("")  # a new run: its parts start again at 1
+
+    @classmethod
+    def from_spec_file(cls, spec_path: Path, log_path: Path | None) -> PartSupply:
+        data = json.loads(Path(spec_path).read_text())
+        if "part_supply" not in data:
+            raise ValueError(f"{spec_path}: no part_supply section (written by SimCell.write_robot_spec)")
+        return cls(int(data["seed"]), data["part_supply"], np.asarray(data["T_b_g0"], dtype=float), log_path)
+
+    @property
+    def T_b_w(self) -> np.ndarray:
+        """The current part in the robot base frame."""
+        return compose(invert(self.T_cf_b), self.T_cf_w)
+
+    def arrive(self) -> np.ndarray:
+        """The current part leaves, the next one arrives; returns its true pose in the robot base frame."""
+        self.close()
+        self.part += 1
+        rng = np.random.default_rng([self.seed, PART_STREAM, self.part])
+        self.T_cf_w = deviated_part(rng, self.T_cf_w0, self.centre_w, self.translation_mm, self.rotation_deg)
+        self._logged = False
+        log.info("part %d arrives", self.part)
+        return self.T_b_w
+
+    def offset_applied(self, part: int, D_b: np.ndarray, grasp_error_mm: float, grasp_error_deg: float) -> None:
+        """The robot applied ``D_b`` to part ``part``: the first one for the current part is its line."""
+        if part != self.part or self._logged:
+            return
+        self._write_line(D_b, grasp_error_mm, grasp_error_deg)
+
+    def close(self) -> None:
+        """The current part leaves without an offset (unless it had one): its line, with ``null``s."""
+        if not self._logged:
+            self._write_line(None, None, None)
+
+    def _write_line(self, D_b: np.ndarray | None, error_mm: float | None, error_deg: float | None) -> None:
+        self._logged = True
+        if self.log_path is None:
+            return
+        line = {
+            "part": self.part,
+            "T_cf_w": self.T_cf_w.tolist(),
+            "offset_ideal": list(T_to_kuka_frame(compose(self.T_b_w, invert(self.T_b_w0)))),
+            "offset_written": None if D_b is None else list(T_to_kuka_frame(D_b)),
+            "grasp_error_mm": error_mm,
+            "grasp_error_deg": error_deg,
+        }
+        with self.log_path.open("a") as f:
+            f.write(json.dumps(line) + "\n")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The controllers' part-supply options."""
+    parser.add_argument("--part-supply", action="store_true",
+                        help="present a new seeded deviated part at every request of measuring pose 1")
+    parser.add_argument("--truth-log", type=Path, default=None,
+                        help="with --part-supply: one JSON line per part (its true pose, offsets, grasp error)")
+
+
+def from_arguments(args: argparse.Namespace) -> PartSupply | None:
+    return PartSupply.from_spec_file(args.spec, args.truth_log) if args.part_supply else None

@@ -1,0 +1,258 @@
+"""A simulated line PLC: a pymodbus server holding the register block of ``docs/plc-interface.md``, plus a
+small program that plays the line.
+
+The server is the genuine pymodbus TCP server over the ``SimDevice``/``SimData`` datastore that pymodbus
+3.16 recommends (the older ``ModbusDeviceContext`` / ``ModbusSequentialDataBlock`` log deprecation
+warnings). :class:`LinePlc` plays one part after another: a part arrives (job, part tag), it waits for
+READY, sets TRIGGER, waits for DONE, reads the result, sets RESULT_ACK and drops TRIGGER, waits for DONE to
+clear and drops RESULT_ACK; meanwhile it toggles its heartbeat. Faults on command (:data:`FAULTS`):
+``trigger-dropped-early`` (TRIGGER dropped as soon as BUSY is seen), ``heartbeat-stopped``, ``no-ack``
+(DONE is never acknowledged). A FAULT status is answered with a FAULT_RESET pulse once the heartbeat runs.
+
+Run in its own process: ``python -m monoguide.drivers.sim.plc --host 127.0.0.x --port N``. It prints
+``LISTEN plc HOST:PORT`` when it serves, then one JSON line per finished part; each line read from
+standard input is a fault command (one of :data:`FAULTS`). It serves until SIGTERM (exit status 0), also
+after ``--parts N`` parts were played, or until its parent process is gone (``monoguide sim-cell`` killed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import logging
+import os
+import signal
+import sys
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from pymodbus.server import ModbusTcpServer
+from pymodbus.simulator import DataType, SimData, SimDevice
+
+from monoguide.drivers.plc_registers import (
+    BLOCK_SIZE,
+    CONTROL,
+    INPUT_COUNT,
+    PLC_HEARTBEAT,
+    STATUS,
+    Control,
+    PlcInputs,
+    PlcOutputs,
+    Status,
+    WordOrder,
+    decode_outputs,
+    encode_inputs,
+    wrap_uint16,
+)
+
+log = logging.getLogger(__name__)
+
+FAULTS = ("none", "trigger-dropped-early", "heartbeat-stopped", "no-ack")
+READ_FC, WRITE_FC = 3, 16
+POLL_S = 0.01
+
+
+class PlcServer:
+    """A pymodbus Modbus TCP server holding registers ``base .. base + 33`` for ``unit`` (others: absent)."""
+
+    def __init__(self, host: str, port: int, unit: int = 1, base: int = 0) -> None:
+        self.host, self.port, self.unit, self.base = host, port, unit, base
+        device = SimDevice(id=unit, simdata=[SimData(address=base, count=BLOCK_SIZE, datatype=DataType.REGISTERS)])
+        self.server = ModbusTcpServer(device, address=(host, port))
+        self._task: asyncio.Task[None] | None = None
+
+    async def start(self) -> None:
+        self._task = asyncio.create_task(self.server.serve_forever())
+        for _ in range(500):  # serve_forever binds in the background; wait until it listens
+            if self.server.transport is not None:
+                return
+            await asyncio.sleep(POLL_S)
+        raise RuntimeError(f"simulated PLC did not listen on {self.host}:{self.port}")
+
+    async def stop(self) -> None:
+        await self.server.shutdown()
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+
+    async def read(self, register: int, count: int = 1) -> list[int]:
+        """Registers as the PLC program sees them (``register`` relative to ``base``)."""
+        words = await self.server.context.async_getValues(self.unit, READ_FC, self.base + register, count)
+        return list(words)  # type: ignore[arg-type]
+
+    async def write(self, register: int, words: list[int]) -> None:
+        await self.server.context.async_setValues(self.unit, WRITE_FC, self.base + register, words)
+
+
+@dataclass
+class LineTiming:
+    part_interval_s: float = 0.2  # a part arrives this long after the last one left
+    heartbeat_period_s: float = 0.5  # the PLC heartbeat changes this often
+    wait_timeout_s: float = 30.0  # how long the line waits for READY / DONE before it gives up on the part
+
+
+@dataclass
+class LinePlc:
+    """The line program over a :class:`PlcServer`; every finished part is passed to ``report``."""
+
+    server: PlcServer
+    timing: LineTiming = field(default_factory=LineTiming)
+    word_order: WordOrder = "big"
+    job: int = 1
+    fault: str = "none"
+    report: Callable[[dict[str, object]], None] = lambda record: None
+    parts: int = 0
+
+    def command(self, fault: str) -> None:
+        """Inject a fault (or ``none`` to clear it)."""
+        if fault not in FAULTS:
+            raise ValueError(f"fault {fault!r}: expected one of {', '.join(FAULTS)}")
+        log.info("simulated PLC: fault %s", fault)
+        self.fault = fault
+
+    async def run(self, part_count: int | None = None, linger: bool = False) -> None:
+        """Play parts (``part_count``: that many); ``linger``: then keep beating until cancelled."""
+        heartbeat = asyncio.create_task(self.heartbeat())
+        try:
+            while part_count is None or self.parts < part_count:
+                await asyncio.sleep(self.timing.part_interval_s)
+                await self.play_part()
+            if linger:
+                await heartbeat
+        finally:
+            heartbeat.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await heartbeat
+
+    async def play_part(self) -> dict[str, object]:
+        """One part through the handshake; returns (and reports) what the line saw."""
+        self.parts += 1
+        tag = wrap_uint16(1000 + self.parts)
+        record: dict[str, object] = {"part": self.parts, "job": self.job, "part_tag": tag}
+        await self._set(0, job=self.job, part_tag=tag)
+        if not await self._wait_status(lambda s: Status.READY in s and not s & (Status.DONE | Status.FAULT)):
+            return self._finish(record, "no READY")
+        await self._set(Control.TRIGGER)
+        if self.fault == "trigger-dropped-early":
+            await self._wait_status(lambda s: Status.BUSY in s or Status.DONE in s)
+            await self._set(0)
+        if not await self._wait_status(lambda s: Status.DONE in s):
+            await self._set(0)
+            return self._finish(record, "no DONE")
+        outputs = decode_outputs(await self.server.read(STATUS, BLOCK_SIZE - STATUS), self.word_order)
+        record.update(_result_record(outputs))
+        if self.fault == "no-ack":
+            return self._finish(record, "not acknowledged")
+        await self._set(Control.RESULT_ACK)
+        cleared = await self._wait_status(lambda s: not s & (Status.DONE | Status.RESULT_OK | Status.ERROR))
+        await self._set(0)
+        return self._finish(record, "acknowledged" if cleared else "DONE not cleared")
+
+    async def heartbeat(self) -> None:
+        """Change the PLC heartbeat every period (unless stopped by command); answer FAULT with FAULT_RESET."""
+        while True:
+            await asyncio.sleep(self.timing.heartbeat_period_s)
+            if self.fault != "heartbeat-stopped":
+                value = (await self.server.read(PLC_HEARTBEAT))[0]
+                await self.server.write(PLC_HEARTBEAT, [wrap_uint16(value + 1)])
+                status = Status((await self.server.read(STATUS))[0] & 0x3F)
+                if Status.FAULT in status:  # the heartbeat runs again: pulse FAULT_RESET
+                    control = (await self.server.read(CONTROL))[0]
+                    await self.server.write(CONTROL, [control | Control.FAULT_RESET])
+                    await asyncio.sleep(self.timing.heartbeat_period_s / 2)
+                    await self.server.write(CONTROL, [(await self.server.read(CONTROL))[0] & ~Control.FAULT_RESET])
+
+    # --- private ---------------------------------------------------------------------------------
+
+    async def _set(self, control: int, job: int | None = None, part_tag: int | None = None) -> None:
+        now = await self.server.read(CONTROL, INPUT_COUNT)
+        words = encode_inputs(PlcInputs(Control(control), now[1] if job is None else job, now[PLC_HEARTBEAT],
+                                        now[3] if part_tag is None else part_tag))
+        await self.server.write(CONTROL, [words[0], words[1]])  # the heartbeat is the heartbeat task's
+        await self.server.write(3, [words[3]])
+
+    async def _wait_status(self, done: Callable[[Status], bool]) -> bool:
+        deadline = asyncio.get_running_loop().time() + self.timing.wait_timeout_s
+        while asyncio.get_running_loop().time() < deadline:
+            if done(Status((await self.server.read(STATUS))[0] & 0x3F)):
+                return True
+            await asyncio.sleep(POLL_S)
+        return False
+
+    def _finish(self, record: dict[str, object], outcome: str) -> dict[str, object]:
+        record["outcome"] = outcome
+        record["fault"] = self.fault
+        self.report(record)
+        return record
+
+
+def _result_record(outputs: PlcOutputs) -> dict[str, object]:
+    r = outputs.result
+    return {"status": int(outputs.status), "result_ok": Status.RESULT_OK in outputs.status,
+            "error_code": r.error_code, "cycle_counter": r.cycle_counter, "echo_job": r.job,
+            "echo_part_tag": r.part_tag, "offset_written": list(r.offset) if Status.RESULT_OK in outputs.status
+            else None, "quality": list(r.quality)}
+
+
+async def _serve(args: argparse.Namespace) -> None:
+    server = PlcServer(args.host, args.port, args.unit, args.base)
+    await server.start()
+    loop = asyncio.get_running_loop()
+    line = LinePlc(server, LineTiming(args.part_interval, args.heartbeat_period), args.word_order, args.job,
+                   args.fault, lambda record: print(json.dumps(record), flush=True))
+
+    def read_commands() -> None:  # stdin in a thread: one fault command per line; end of input is fine
+        for text in sys.stdin:
+            if text.strip():
+                loop.call_soon_threadsafe(_command, line, text.strip())
+
+    threading.Thread(target=read_commands, daemon=True).start()
+    stop = asyncio.Event()
+    loop.add_signal_handler(signal.SIGTERM, stop.set)
+    parent = os.getppid()  # noted before LISTEN: a parent that dies right after reading it is still noticed
+    print(f"LISTEN plc {args.host}:{args.port}", flush=True)
+    line_task = asyncio.create_task(line.run(args.parts, linger=True) if args.play else line.heartbeat())
+    try:
+        while not stop.is_set() and os.getppid() == parent:  # after --parts: served (and beating) until SIGTERM
+            with contextlib.suppress(asyncio.TimeoutError):
+                await asyncio.wait_for(stop.wait(), 0.2)
+    finally:
+        line_task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await line_task
+        await server.stop()
+
+
+def _command(line: LinePlc, text: str) -> None:
+    try:
+        line.command(text)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr, flush=True)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m monoguide.drivers.sim.plc", description=__doc__.split("\n")[0])
+    parser.add_argument("--host", default="127.0.0.1")
+    parser.add_argument("--port", type=int, default=502)
+    parser.add_argument("--unit", type=int, default=1)
+    parser.add_argument("--base", type=int, default=0)
+    parser.add_argument("--word-order", choices=("big", "little"), default="big")
+    parser.add_argument("--job", type=int, default=1)
+    parser.add_argument("--fault", choices=FAULTS, default="none")
+    parser.add_argument("--part-interval", type=float, default=0.2)
+    parser.add_argument("--heartbeat-period", type=float, default=0.5)
+    parser.add_argument("--parts", type=int, default=None, help="stop after this many parts (default: run on)")
+    parser.add_argument("--no-play", dest="play", action="store_false",
+                        help="serve the registers and beat the heartbeat, play no parts")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
+    with contextlib.suppress(KeyboardInterrupt):
+        asyncio.run(_serve(args))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,209 @@
+"""The SQLite journal: round trip, nothing committed lost to kill -9, bad files refused, images pruned."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from monoguide.daemon.journal import (
+    CycleEntry,
+    Journal,
+    JournalEntryInvalid,
+    JournalEntryMissing,
+    JournalNotADatabase,
+    JournalSchemaUnknown,
+)
+from monoguide.drivers.errors import DeviceTimeout
+
+EXAMPLE_RECORD = Path(__file__).parents[2] / "examples" / "example-record.json"
+
+# The content of cycle n is a function of n alone, so the parent knows what every committed row must hold
+# without trusting anything the child (or the journal) says. Shared verbatim with the child process.
+EXPECTED_CYCLE = textwrap.dedent("""
+    def expected_entry(n, record):
+        from monoguide.daemon.journal import CycleEntry
+        from monoguide.drivers.errors import DeviceTimeout
+        record = dict(record, id=f"part-{n}")
+        failed = n % 5 == 0
+        return CycleEntry(
+            started_at=1_790_000_000.0 + 10 * n, finished_at=1_790_000_004.5 + 10 * n, job=1, part_tag=n % 65536,
+            record=record, result=None if failed else {"id": f"part-{n}", "status": "ok", "rms_px": n / 1000},
+            error=DeviceTimeout(f"robot: measuring pose {n % 4 + 1} not reached within 10 s") if failed else None,
+            timings_s={"measuring": 2.0 + n / 100, "solving": 0.05, "checking": 0.001},
+            poses_at_capture=[[[1.0, 0.0, 0.0, 100.0 * n], [0.0, 1.0, 0.0, 1.5], [0.0, 0.0, 1.0, -2.25],
+                               [0.0, 0.0, 0.0, 1.0]]] * 4,
+            image_paths=[f"images/{n}/view{i}.png" for i in range(4)],
+        )
+""")
+namespace: dict = {}
+exec(EXPECTED_CYCLE, namespace)
+expected_entry = namespace["expected_entry"]
+
+WRITER = EXPECTED_CYCLE + textwrap.dedent("""
+    import json, sys
+    from monoguide.daemon.journal import Journal
+    record = json.load(open(sys.argv[2]))
+    journal = Journal(sys.argv[1])
+    while True:
+        number = journal.cycle_counter() + 1
+        assert journal.commit_cycle(expected_entry(number, record)) == number
+        print(number, flush=True)  # only after the commit returned
+""")
+
+
+def _record() -> dict:
+    return json.loads(EXAMPLE_RECORD.read_text())
+
+
+def _assert_row_is(journal: Journal, number: int) -> None:
+    entry, row = expected_entry(number, _record()), journal.cycle(number)
+    assert (row.number, row.started_at, row.finished_at, row.job, row.part_tag) == (
+        number, entry.started_at, entry.finished_at, 1, number)
+    assert row.record == entry.record and row.result == entry.result
+    assert row.timings_s == entry.timings_s and row.poses_at_capture == entry.poses_at_capture
+    assert row.image_paths == entry.image_paths
+    if entry.error is None:
+        assert (row.status, row.error_code, row.plc_code, row.error_message) == ("ok", None, 0, None)
+    else:
+        assert (row.status, row.error_code, row.plc_code) == ("error", "DEVICE_TIMEOUT", 402)
+        assert row.error_message == entry.error.message
+
+
+def test_round_trip_and_the_counter_survives_reopening(tmp_path: Path) -> None:
+    with Journal(tmp_path / "state") as journal:
+        assert journal.cycle_counter() == 0
+        for number in (1, 2, 3, 4, 5):
+            assert journal.commit_cycle(expected_entry(number, _record())) == number
+        assert journal.cycle_counter() == 5
+    with Journal(tmp_path / "state") as journal:
+        for number in (1, 2, 3, 4, 5):
+            _assert_row_is(journal, number)
+        assert [row.number for row in journal.last_cycles(2)] == [5, 4]
+        assert journal.commit_cycle(expected_entry(6, _record())) == 6
+        with pytest.raises(JournalEntryMissing, match=r"no cycle 7 \(counter 6\)"):
+            journal.cycle(7)
+    db = sqlite3.connect(tmp_path / "state" / "journal.sqlite3")
+    assert db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+    assert db.execute("PRAGMA user_version").fetchone()[0] == 1
+
+
+def test_a_contradictory_or_non_json_entry_is_refused_and_nothing_written(tmp_path: Path) -> None:
+    with Journal(tmp_path) as journal:
+        with pytest.raises(JournalEntryInvalid, match="neither a result nor an error"):
+            journal.commit_cycle(CycleEntry(started_at=1.0, finished_at=2.0))
+        with pytest.raises(JournalEntryInvalid, match="timings_s is not plain JSON"):
+            journal.commit_cycle(CycleEntry(1.0, 2.0, result={"status": "ok"}, timings_s={"solving": float("nan")}))
+        assert journal.cycle_counter() == 0
+
+
+def test_kill_minus_9_loses_nothing_committed(tmp_path: Path) -> None:
+    state_dir, record_file = tmp_path / "state", tmp_path / "record.json"
+    record_file.write_text(json.dumps(_record()))
+    acknowledged: list[int] = []
+    for kill_after in (15, 25, 10):  # three lives of the service, each killed while committing more
+        child = subprocess.Popen([sys.executable, "-c", WRITER, str(state_dir), str(record_file)],
+                                 stdout=subprocess.PIPE, text=True)
+        assert child.stdout is not None
+        deadline = time.monotonic() + 10
+        for _ in range(kill_after):
+            line = child.stdout.readline()
+            assert line, f"writer ended early with {child.wait()}"
+            acknowledged.append(int(line))
+            assert time.monotonic() < deadline
+        os.kill(child.pid, signal.SIGKILL)  # it is busy committing the next cycles
+        child.wait(timeout=5)
+        acknowledged += [int(line) for line in child.stdout.read().split()]
+        child.stdout.close()
+        assert child.returncode == -signal.SIGKILL
+    # a commit may land after the last line a life printed, so numbers may skip across lives, never repeat
+    assert acknowledged == sorted(set(acknowledged)) and len(acknowledged) >= 50
+    with Journal(state_dir) as journal:
+        assert journal.integrity_check() == "ok"
+        counter = journal.cycle_counter()
+        assert counter >= acknowledged[-1]  # a commit may land after the last line the child printed
+        for number in range(1, counter + 1):
+            _assert_row_is(journal, number)
+
+
+def test_a_file_that_is_not_sqlite_is_refused_by_name(tmp_path: Path) -> None:
+    path = tmp_path / "journal.sqlite3"
+    path.write_bytes(b"this is a config file, not a journal\n" * 200)
+    with pytest.raises(JournalNotADatabase, match=f"journal {path}: not an SQLite database"):
+        Journal(tmp_path)
+    assert path.read_bytes() == b"this is a config file, not a journal\n" * 200  # untouched
+
+
+def test_a_corrupted_journal_is_refused(tmp_path: Path) -> None:
+    with Journal(tmp_path) as journal:
+        journal.commit_cycle(expected_entry(1, _record()))
+    path = tmp_path / "journal.sqlite3"
+    data = bytearray(path.read_bytes())
+    data[:16] = b"garbage garbage!"  # the header magic
+    path.write_bytes(bytes(data))
+    with pytest.raises(JournalNotADatabase, match="not an SQLite database"):
+        Journal(tmp_path)
+
+
+def test_another_programs_database_and_an_unknown_version_are_refused(tmp_path: Path) -> None:
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    db = sqlite3.connect(foreign / "journal.sqlite3")
+    db.execute("CREATE TABLE recipes (name TEXT)")
+    db.commit()
+    db.close()
+    with pytest.raises(JournalSchemaUnknown, match="not a monoguide journal"):
+        Journal(foreign)
+    with Journal(tmp_path / "newer"):
+        pass
+    db = sqlite3.connect(tmp_path / "newer" / "journal.sqlite3")
+    db.execute("PRAGMA user_version = 7")
+    db.close()
+    with pytest.raises(JournalSchemaUnknown, match=r"schema version 7 \(written by a newer monoguide\?\).*version 1"):
+        Journal(tmp_path / "newer")
+
+
+def _cycle_with_images(journal: Journal, number: int, finished_at: float, size: int) -> list[Path]:
+    paths = [journal.images_dir / str(number) / f"view{i}.png" for i in range(2)]
+    for path in paths:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(b"\x89PNG" + bytes(size - 4))
+    entry = CycleEntry(finished_at - 5, finished_at, result={"status": "ok"}, image_paths=[str(p) for p in paths])
+    assert journal.commit_cycle(entry) == number
+    return paths
+
+
+def test_prune_keeps_images_under_the_size_and_age_limits(tmp_path: Path) -> None:
+    now = 1_790_000_000.0
+    with Journal(tmp_path) as journal:
+        # cycles 1..6 finished 6, 5, ... 1 hours ago; each has two images of 1000 bytes
+        images = {n: _cycle_with_images(journal, n, now - (7 - n) * 3600, 1000) for n in range(1, 7)}
+        assert journal.cycle(1).image_paths == ["images/1/view0.png", "images/1/view1.png"]  # relative
+        report = journal.prune_images(max_bytes=10**9, max_age_s=4.5 * 3600, now=now)  # age: cycles 1, 2 go
+        assert (report.cycles, report.files, report.bytes_freed) == (2, 4, 4000)
+        report = journal.prune_images(max_bytes=4500, max_age_s=10**9, now=now)  # size: 8000 -> 4000
+        assert (report.cycles, report.files, report.bytes_freed) == (2, 4, 4000)
+        gone = {n for n, paths in images.items() if not any(p.exists() for p in paths)}
+        assert gone == {1, 2, 3, 4}
+        assert all(p.exists() for n in (5, 6) for p in images[n])
+        assert journal.cycle(4).images_pruned_at == now and journal.cycle(5).images_pruned_at is None
+        assert journal.cycle(4).status == "ok"  # the row itself stays
+        assert journal.prune_images(max_bytes=4500, max_age_s=10**9, now=now).cycles == 0
+
+
+def test_an_error_cycle_keeps_its_code(tmp_path: Path) -> None:
+    with Journal(tmp_path) as journal:
+        number = journal.commit_cycle(CycleEntry(1.0, 2.0, job=1, part_tag=9,
+                                                 error=DeviceTimeout("camera: no frame within 2 s")))
+        row = journal.cycle(number)
+    assert (row.status, row.error_code, row.plc_code, row.error_message) == (
+        "error", "DEVICE_TIMEOUT", 402, "camera: no frame within 2 s")
+    assert row.record is None and row.result is None
