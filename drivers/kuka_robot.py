@@ -82,30 +82,13 @@ class KukaRobot(HandshakeRobot):
                  move_timeout_s: float = 30.0, ack_timeout_s: float = 2.0, stale_timeout_s: float = 1.0,
                  T_b_f_taught: tuple[np.ndarray, ...] = (), pose_tolerance_mm: float = 1.0,
                  pose_tolerance_deg: float = 0.1) -> None:
-        self.host, self.port = host, port
-        self.name = f"KUKA robot {host}:{port}"
-        self.connect_timeout_s, self.move_timeout_s = connect_timeout_s, move_timeout_s
-        self.ack_timeout_s, self.stale_timeout_s = ack_timeout_s, stale_timeout_s
-        self.T_b_f_taught = T_b_f_taught
-        self.pose_tolerance_mm, self.pose_tolerance_deg = pose_tolerance_mm, pose_tolerance_deg
+        super().__init__(f"KUKA robot {host}:{port}", host, port, connect_timeout_s=connect_timeout_s,
+                         move_timeout_s=move_timeout_s, ack_timeout_s=ack_timeout_s, stale_timeout_s=stale_timeout_s,
+                         T_b_f_taught=T_b_f_taught, pose_tolerance_mm=pose_tolerance_mm,
+                         pose_tolerance_deg=pose_tolerance_deg)
         self._channel: XmlChannel | None = None
-        self._identity: RobotIdentity | None = None
         self._latest: kuka.KukaReport | None = None
         self._latest_at = 0.0
-        self._sequence = 0
-
-    @property
-    def identity(self) -> RobotIdentity | None:
-        return self._identity
-
-    def open(self) -> RobotIdentity:
-        try:
-            self._connect()
-        except BaseException:
-            self.close()
-            raise
-        assert self._identity is not None
-        return self._identity
 
     def status(self) -> RobotStatus:
         if self._channel is None:
@@ -124,13 +107,6 @@ class KukaRobot(HandshakeRobot):
         if self._channel is not None:
             self._channel.close()
         self._channel = None
-
-    def __enter__(self) -> KukaRobot:
-        self.open()
-        return self
-
-    def __exit__(self, *exc_info: object) -> None:
-        self.close()
 
     # --- private -------------------------------------------------------------------------------
 

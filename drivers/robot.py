@@ -19,7 +19,7 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Protocol, Self, runtime_checkable
 
 import numpy as np
 
@@ -167,18 +167,48 @@ def check_at_taught_pose(T_b_f: np.ndarray, T_b_f_taught: np.ndarray | None, tol
 
 class HandshakeRobot:
     """The handshake both adapters share: a request with a new sequence number, then waiting for the robot's
-    acknowledgement of exactly that number. An adapter supplies :meth:`status`, :meth:`_send_request` (in
-    its wire's units) and :meth:`_pause`, and sets the attributes below."""
+    acknowledgement of exactly that number; and opening, closing and the identity. An adapter supplies
+    :meth:`_connect` (which sets ``_identity``), :meth:`close`, :meth:`status`, :meth:`_send_request` (in its
+    wire's units) and, if it must, :meth:`_pause`."""
 
-    name: str
-    move_timeout_s: float
-    ack_timeout_s: float
-    T_b_f_taught: tuple[np.ndarray, ...]
-    pose_tolerance_mm: float
-    pose_tolerance_deg: float
-    _sequence: int
+    def __init__(self, name: str, host: str, port: int, *, connect_timeout_s: float, move_timeout_s: float,
+                 ack_timeout_s: float, stale_timeout_s: float, T_b_f_taught: tuple[np.ndarray, ...],
+                 pose_tolerance_mm: float, pose_tolerance_deg: float) -> None:
+        self.host, self.port, self.name = host, port, name
+        self.connect_timeout_s, self.move_timeout_s = connect_timeout_s, move_timeout_s
+        self.ack_timeout_s, self.stale_timeout_s = ack_timeout_s, stale_timeout_s
+        self.T_b_f_taught = T_b_f_taught
+        self.pose_tolerance_mm, self.pose_tolerance_deg = pose_tolerance_mm, pose_tolerance_deg
+        self._identity: RobotIdentity | None = None
+        self._sequence = 0
+
+    @property
+    def identity(self) -> RobotIdentity | None:
+        return self._identity
+
+    def open(self) -> RobotIdentity:
+        try:
+            self._connect()
+        except BaseException:
+            self.close()
+            raise
+        assert self._identity is not None
+        return self._identity
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        self.open()
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
 
     def status(self) -> RobotStatus:
+        raise NotImplementedError
+
+    def _connect(self) -> None:
         raise NotImplementedError
 
     def move_to_measuring_pose(self, i: int, timeout_s: float | None = None) -> RobotStatus:

@@ -186,36 +186,18 @@ class UrRobot(HandshakeRobot):
                  pose_tolerance_mm: float = 1.0, pose_tolerance_deg: float = 0.1) -> None:
         if port != rtde.DEFAULT_PORT:
             raise ValueError(f"RTDE port {port}: ur_rtde connects to {rtde.DEFAULT_PORT} only")
-        self.host, self.port = host, port
-        self.name = f"UR robot {host}:{port}"
+        super().__init__(f"UR robot {host}:{port}", host, port, connect_timeout_s=connect_timeout_s,
+                         move_timeout_s=move_timeout_s, ack_timeout_s=ack_timeout_s, stale_timeout_s=stale_timeout_s,
+                         T_b_f_taught=T_b_f_taught, pose_tolerance_mm=pose_tolerance_mm,
+                         pose_tolerance_deg=pose_tolerance_deg)
         self.frequency_hz = frequency_hz
-        self.connect_timeout_s, self.move_timeout_s, self.ack_timeout_s = connect_timeout_s, move_timeout_s, \
-            ack_timeout_s
-        self.stale_timeout_s = stale_timeout_s
-        self.T_b_f_taught = T_b_f_taught
-        self.pose_tolerance_mm, self.pose_tolerance_deg = pose_tolerance_mm, pose_tolerance_deg
         self._worker = RtdeReceiveWorker(self.name)
         self._inputs = RtdeInputClient(host, port, connect_timeout_s)
-        self._identity: RobotIdentity | None = None
-        self._sequence = 0
         self._last_timestamp: tuple[float, float] | None = None  # controller's, ours when it last changed
-
-    @property
-    def identity(self) -> RobotIdentity | None:
-        return self._identity
 
     @property
     def worker_restarts(self) -> int:
         return self._worker.restarts
-
-    def open(self) -> RobotIdentity:
-        try:
-            self._connect()
-        except BaseException:
-            self.close()
-            raise
-        assert self._identity is not None
-        return self._identity
 
     def status(self) -> RobotStatus:
         self._ensure_connected()
@@ -239,13 +221,6 @@ class UrRobot(HandshakeRobot):
     def close(self) -> None:
         self._inputs.close()
         self._worker.stop()
-
-    def __enter__(self) -> UrRobot:
-        self.open()
-        return self
-
-    def __exit__(self, *exc_info: object) -> None:
-        self.close()
 
     # --- private -------------------------------------------------------------------------------
 

@@ -4,7 +4,6 @@ each test on its own 127.0.0.x address (ur_rtde's port 30004 is fixed)."""
 from __future__ import annotations
 
 import itertools
-import json
 import os
 import signal
 import socket
@@ -16,6 +15,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from robot_helpers import (
+    ADAPTER_OPTIONS,
+    FAILURE_MODES,
+    SIM_CELL,
+    assert_within_repeatability,
+    check_failure_mode,
+    lose_connection,
+    offsets_recorded,
+    sim_cell,
+    stopping,
+    taught_poses,
+    truth,
+)
 from scipy.spatial.transform import Rotation
 
 from monoguide.daemon.assembly import build_sim_cell
@@ -23,15 +35,10 @@ from monoguide.daemon.config import load_cell_config
 from monoguide.drivers import rtde_protocol as rtde
 from monoguide.drivers.errors import (
     DeviceBusy,
-    DeviceDisconnected,
     DeviceError,
     DeviceNotFound,
     DeviceTimeout,
-    RobotAckTimeout,
     RobotCommandRejected,
-    RobotNotReady,
-    RobotPositionTimeout,
-    RobotProtectiveStop,
     RobotWorkerCrashed,
 )
 from monoguide.drivers.robot import Robot
@@ -39,9 +46,8 @@ from monoguide.drivers.sim.cell import SimCell
 from monoguide.drivers.sim.robot_motion import follow_truth
 from monoguide.drivers.sim.robot_process import ControllerProcess, start_controller
 from monoguide.drivers.ur_robot import RtdeChannel, RtdeInputClient, UrRobot
-from monoguide.solver.frames import T_to_ur_pose, compose, invert, make_T, pose_difference
+from monoguide.solver.frames import T_to_ur_pose, compose, invert, make_T
 
-SIM_CELL = Path(__file__).parents[2] / "config" / "sim-cell.toml"
 _addresses = itertools.count(50)
 
 
@@ -51,9 +57,7 @@ def next_host() -> str:
 
 @pytest.fixture(scope="module")
 def cell() -> SimCell:
-    c = build_sim_cell(load_cell_config(SIM_CELL))
-    c.new_part()  # a deviated part: the ideal offset is not the identity
-    return c
+    return sim_cell()
 
 
 @pytest.fixture
@@ -68,18 +72,13 @@ def start(spec: Path, fault: str = "none", host: str | None = None) -> Controlle
 
 @pytest.fixture
 def controller(spec: Path) -> Iterator[ControllerProcess]:
-    c = start(spec)
-    try:
+    with stopping(start(spec)) as c:
         yield c
-    finally:
-        c.stop()
 
 
 def make_robot(cell: SimCell, host: str, **kw: float) -> UrRobot:
-    taught = tuple(cell.T_b_f_taught(i) for i in range(cell.n_measuring_poses))
-    options = {"frequency_hz": 50.0, "connect_timeout_s": 2.0, "move_timeout_s": 2.0, "ack_timeout_s": 0.5,
-               "stale_timeout_s": 0.4, "pose_tolerance_mm": 0.5, "pose_tolerance_deg": 0.1, **kw}
-    return UrRobot(host, T_b_f_taught=taught, **options)  # type: ignore[arg-type]
+    options = {"frequency_hz": 50.0, **ADAPTER_OPTIONS, **kw}
+    return UrRobot(host, T_b_f_taught=taught_poses(cell), **options)  # type: ignore[arg-type]
 
 
 @pytest.fixture
@@ -90,20 +89,6 @@ def robot(cell: SimCell, controller: ControllerProcess) -> Iterator[UrRobot]:
         yield r
     finally:
         r.close()
-
-
-def truth(controller: ControllerProcess) -> dict:
-    return json.loads(controller.truth.read_text())
-
-
-def wait_truth(controller: ControllerProcess, key: str, n: int) -> dict:
-    deadline = time.monotonic() + 2.0
-    while time.monotonic() < deadline:
-        t = truth(controller)
-        if len(t[key]) >= n:
-            return t
-        time.sleep(0.02)
-    pytest.fail(f"simulated controller never recorded {n} {key}")
 
 
 # --- the genuine client ------------------------------------------------------------------------
@@ -147,9 +132,7 @@ def test_move_stops_at_the_taught_pose_within_repeatability(robot: UrRobot, cont
     assert status.in_position == 3 and status.ack_sequence >= 1
     stop = np.array(truth(controller)["stops"]["3"])
     np.testing.assert_allclose(status.T_b_f, stop, atol=1e-9)  # the pose recorded is where the robot stopped
-    angle_deg, distance_mm = pose_difference(status.T_b_f, cell.T_b_f_taught(2))
-    assert 0 < distance_mm < 6 * cell.spec.repeatability_mm * np.sqrt(3)
-    assert angle_deg < 6 * cell.spec.repeatability_deg * np.sqrt(3)
+    assert_within_repeatability(cell, status.T_b_f, 2)
     camera_cell = build_sim_cell(load_cell_config(SIM_CELL))  # the simulated camera's cell, in this process
     assert follow_truth(camera_cell, controller.truth) == 3
     np.testing.assert_allclose(camera_cell.actual_flange_pose(), status.T_b_f, atol=1e-9)
@@ -163,14 +146,11 @@ def test_offset_arrives_in_one_package_in_metres_and_rotation_vector(robot: UrRo
     D_off = compose(make_T(np.eye(3), np.array([0.3, 0.0, 0.0])), D_ideal)  # 0.3 mm off at every point
     s1 = robot.write_base_offset(D_ideal)
     s2 = robot.write_base_offset(D_off)
-    offsets = wait_truth(controller, "offsets", 2)["offsets"]
-    assert [o["sequence"] for o in offsets] == [s1, s2] and {o["part"] for o in offsets} == {42}
+    offsets = offsets_recorded(controller, [s1, s2], 42, D_ideal)
     np.testing.assert_allclose(offsets[0]["received"], T_to_ur_pose(D_ideal), rtol=0, atol=1e-15)
     assert abs(offsets[0]["received"][0] * 1000.0 - D_ideal[0, 3]) < 1e-9  # metres on the wire
     rotation = Rotation.from_rotvec(offsets[0]["received"][3:]).as_matrix()  # radians, by scipy
     np.testing.assert_allclose(rotation, D_ideal[:3, :3], rtol=0, atol=1e-12)
-    np.testing.assert_allclose(np.array(offsets[0]["D_b"]), D_ideal, atol=1e-9)
-    assert offsets[0]["grasp_error_mm"] < 1e-9 and offsets[0]["grasp_error_deg"] < 1e-9
     assert offsets[1]["grasp_error_mm"] == pytest.approx(0.3, abs=1e-9) and offsets[1]["grasp_error_deg"] < 1e-9
 
 
@@ -199,10 +179,7 @@ def test_adapter_reconnects_after_the_controller_crashed(spec: Path, cell: SimCe
         r.open()
         os.kill(c.process.pid, signal.SIGKILL)
         c.stop()
-        with pytest.raises((DeviceDisconnected, DeviceTimeout)):
-            for _ in range(100):
-                r.status()
-                time.sleep(0.02)
+        lose_connection(r)
         c = start(spec, host=c.host)
         assert r.move_to_measuring_pose(1).in_position == 2
         assert r.worker_restarts >= 1
@@ -239,28 +216,10 @@ def test_absent_controller_is_device_not_found(cell: SimCell) -> None:
     r.close()
 
 
-@pytest.mark.parametrize(("fault", "action", "error"), [
-    ("stall", "move", DeviceTimeout),
-    ("drop", "move", DeviceDisconnected),
-    ("protective-stop", "move", RobotProtectiveStop),
-    ("never-reach", "move", RobotPositionTimeout),
-    ("no-ack", "offset", RobotAckTimeout),
-    ("program-stopped", "offset", RobotNotReady),
-])
+@pytest.mark.parametrize(("fault", "action", "error"), FAILURE_MODES)
 def test_failure_modes(spec: Path, cell: SimCell, fault: str, action: str, error: type[DeviceError]) -> None:
     c = start(spec, fault=fault)
-    r = make_robot(cell, c.host, move_timeout_s=0.6)
-    try:
-        r.open()
-        with pytest.raises(error) as info:
-            if action == "move":
-                r.move_to_measuring_pose(1)
-            else:
-                r.write_base_offset(np.eye(4))
-        assert info.value.code == error.code
-    finally:
-        r.close()
-        c.stop()
+    check_failure_mode(c, make_robot(cell, c.host, move_timeout_s=0.6), action, error)
 
 
 def test_data_packages_flow_at_the_recipe_frequency_until_paused(controller: ControllerProcess) -> None:
