@@ -23,6 +23,8 @@ from monoguide.daemon.config import CellConfig, default_sim_state_file
 from monoguide.drivers.camera import Camera, CameraSettings
 from monoguide.drivers.errors import ConfigError, DeviceNotFound
 from monoguide.drivers.genicam_camera import GenICamCamera
+from monoguide.drivers.modbus_plc import ModbusPlc
+from monoguide.drivers.plc import Plc
 from monoguide.drivers.robot import Robot
 from monoguide.drivers.tracker import LaserTracker, SerialLaserTracker
 from monoguide.solver.frames import compose, invert
@@ -39,15 +41,23 @@ def camera_settings(config: CellConfig) -> CameraSettings:
     return CameraSettings(c.pixel_format, c.exposure_us, c.gain_db, c.region)
 
 
-def build_camera(config: CellConfig, sim_cell: SimCell | None = None) -> Camera:
-    """The cell's camera, not yet opened. The simulated one reads ``sim_cell`` (built from config if None)."""
+def build_camera(config: CellConfig, sim_cell: SimCell | None = None, state_file: Path | None = None) -> Camera:
+    """The cell's camera, not yet opened. The simulated one reads ``sim_cell`` (built from config if None).
+
+    In a cell whose robot is simulated too (``[robot] backend = "sim-*"``) the simulated camera follows that
+    robot: before every grab it stands where the sim-cell's controller has its robot and sees the part its
+    part supply presents, and it takes up the ``camera`` faults commanded to sim-cell; both are found through
+    the sim-cell state file (``state_file``, default ``[sim] state_file``)."""
     c = config.camera
     if c.backend == "genicam":
         assert c.cti is not None  # the config loader insists
         return GenICamCamera(c.cti, serial=c.serial, user_name=c.user_name)
     from monoguide.drivers.sim.camera import SimCamera  # only a simulated cell loads the simulator
 
-    return SimCamera(sim_cell if sim_cell is not None else build_sim_cell(config))
+    follow = None
+    if config.robot is not None and config.robot.simulated:
+        follow = state_file or sim_state_file(config)
+    return SimCamera(sim_cell if sim_cell is not None else build_sim_cell(config), follow=follow)
 
 
 def build_tracker(config: CellConfig, state_file: Path | None = None) -> LaserTracker:
@@ -91,6 +101,15 @@ def build_robot(config: CellConfig, state_file: Path | None = None) -> Robot:
     if r.make == "ur":
         return UrRobot(host, port, frequency_hz=r.rtde_frequency_hz, **timeouts)
     return KukaRobot(host, port, **timeouts)
+
+
+def build_plc(config: CellConfig) -> Plc:
+    """The line's PLC, not yet connected: Modbus TCP where ``[plc]`` says (the simulated PLC of
+    ``monoguide sim-cell`` listens exactly there too)."""
+    p = config.plc
+    if p is None:
+        raise ConfigError(f"{config.path}: no [plc] section")
+    return ModbusPlc(p.host, p.port, p.unit, p.base, p.word_order, p.timeout_s)  # type: ignore[arg-type]
 
 
 def taught_flange_poses(config: CellConfig) -> tuple[np.ndarray, ...]:

@@ -7,7 +7,8 @@ from typing import Annotated
 
 import typer
 
-from monoguide.daemon import cmd_detect, cmd_journal, cmd_plan, cmd_probe, cmd_simcell, cmd_solve, cmd_status
+from monoguide.daemon import cmd_detect, cmd_journal, cmd_plan, cmd_probe, cmd_run, cmd_simcell, cmd_solve, cmd_status
+from monoguide.daemon.cmd_simulate import simulate
 
 HELP = "Vision-guided robotics: measure a large part with a flange camera, write the robot's base offset."
 
@@ -24,6 +25,8 @@ app.command("detect")(cmd_detect.detect)
 app.command("probe")(cmd_probe.probe)
 app.command("sim-cell")(cmd_simcell.sim_cell)
 app.command("status")(cmd_status.status)
+app.command("simulate")(simulate)
+app.command("run")(cmd_run.run)
 app.add_typer(cmd_journal.app, name="journal")
 
 

@@ -4,9 +4,18 @@ That is the laser tracker behind a pseudo-terminal; when ``[robot] backend`` is 
 the simulated robot controller on ``[robot] host:port`` (its spec and truth files lie beside the state
 file), which also runs the part supply (a new seeded part at every request of measuring pose 1, one line per
 part in ``--truth-log``); and, with a ``[plc]`` section and without ``--no-plc``, the simulated line PLC on
-``[plc] host:port`` (its per-part records are echoed to stdout as ``plc: {...}``). Where each device listens
-goes to stdout and to a JSON state file that ``monoguide probe`` (and ``run``) read. Ctrl-C or SIGTERM stops
-everything; no child process is left behind.
+``[plc] host:port`` (its per-part records are echoed to stdout as ``plc: {...}``; ``--parts N``: it plays N
+parts, then only beats its heartbeat). Where each device listens goes to stdout and to a JSON state file that
+``monoguide probe`` (and ``run``) read. Ctrl-C or SIGTERM stops everything; no child process is left behind.
+
+The fault channel: each line of standard input is a command (end of input is fine; the cell runs on):
+``plc <fault>`` goes to the simulated PLC's standard input, ``robot <fault>`` to the simulated robot
+controller's (both at run time; ``none`` clears), ``camera <failure> [count]`` into the state file as
+``"camera_fault": {"failure", "count", "serial"}`` for the daemon's in-process simulated camera (a new
+serial per command, so that it applies once). An accepted command is echoed on stdout as ``fault: <device>
+<fault>``, a refused one on stderr as ``fault error: <reason>``. The names are the simulator's own
+(:data:`FAULT_COMMANDS`; runtime code does not import the simulator, a test checks that they agree).
+What the service reports for each: ``docs/plc-interface.md``, "The simulated PLC and its faults".
 
 One sim-cell per state file: the claim is an exclusive ``flock`` on ``<state file>.lock``, held for the
 process's lifetime (the kernel releases it when the process ends, however it ends), so two sim-cells
@@ -15,6 +24,7 @@ started together cannot both run, and only the owner ever writes or deletes the 
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import logging
 import os
@@ -39,6 +49,16 @@ START_TIMEOUT_S = 15.0
 STOP_TIMEOUT_S = 3.0
 EXIT_DEVICE = 1
 EXIT_CONFIG = 2
+MAX_CAMERA_COUNT = 1000
+
+# the faults each simulated device takes (drivers/sim/plc.py FAULTS, drivers/sim/robot_motion.py FAULT_MODES,
+# drivers/sim/camera.py FAILURES): copied, since runtime code never imports the simulator;
+# tests/daemon/test_cmd_simcell.py checks that they agree
+FAULT_COMMANDS: dict[str, tuple[str, ...]] = {
+    "plc": ("none", "trigger-dropped-early", "heartbeat-stopped", "no-ack"),
+    "robot": ("none", "stall", "drop", "protective-stop", "never-reach", "no-ack", "program-stopped"),
+    "camera": ("timeout", "disconnect", "black", "occluded", "glare"),
+}
 
 
 def sim_cell(
@@ -52,8 +72,13 @@ def sim_cell(
     truth_log: Annotated[
         Path | None, typer.Option("--truth-log", help="one JSON line per part: its true pose, offsets, grasp error")
     ] = None,
+    parts: Annotated[
+        int | None, typer.Option("--parts", min=0, help="the simulated PLC plays this many parts, then only beats "
+                                                        "its heartbeat (default: parts without end)")
+    ] = None,
 ) -> None:
-    """Start the simulated cell's device processes and keep them running until Ctrl-C or SIGTERM."""
+    """Start the simulated cell's device processes and keep them running until Ctrl-C or SIGTERM; fault commands
+    on standard input (plc|robot <fault>, camera <failure> [count])."""
     stop = {"signal": 0}
 
     def _on_signal(signum: int, _frame: object) -> None:
@@ -90,11 +115,12 @@ def sim_cell(
             "tracker": {"port": tracker.address, "pid": tracker.process.pid, "targets": str(targets_path)},
         }
         robot_files = _robot_files(cfg, state_path)
+        robot = None
         if robot_files:
             robot = _start_robot(cfg, cell, *robot_files, truth_log)
             children.append(robot.process)
             state["robot"] = robot.state
-        plc = None if no_plc or cfg.plc is None else _start_plc(cfg)
+        plc = None if no_plc or cfg.plc is None else _start_plc(cfg, parts)
         if plc is not None:
             children.append(plc.process)
             host, _, port = plc.address.rpartition(":")
@@ -108,15 +134,21 @@ def sim_cell(
             typer.echo(f"plc listening on {plc.address} unit {cfg.plc.unit} (pid {plc.process.pid})")  # type: ignore[union-attr]
         elif cfg.plc is not None:
             typer.echo(f"plc left out (--no-plc): {cfg.plc.host}:{cfg.plc.port} is free for another server")
+        if plc is None and parts is not None:
+            typer.echo(f"--parts {parts} ignored: no simulated PLC plays parts", err=True)
         typer.echo(f"state file {state_path}")
-        typer.echo("running; Ctrl-C or SIGTERM stops the simulated cell", err=True)
+        typer.echo("running; Ctrl-C or SIGTERM stops the simulated cell; faults on stdin: plc|robot <fault>, "
+                   "camera <failure> [count]", err=True)
         sys.stdout.flush()
+        faults = _FaultChannel(cfg, state_path, state, plc, robot.process if robot is not None else None)
+        plc_lines = _Lines(plc.process.stdout.fileno()) if plc is not None and plc.process.stdout else None
+        commands = _Lines(0) if _stdin_open() else None
         while not stop["signal"]:
             for child in children:
                 if child.poll() is not None:
                     raise DeviceDisconnected(f"simulated device (pid {child.pid}) ended with status "
                                              f"{child.returncode}")
-            _echo_plc_records(plc)
+            _serve_once(plc_lines, commands, faults)
         typer.echo(f"stopping ({signal.Signals(stop['signal']).name})", err=True)
     except OSError as exc:  # a state or targets file that cannot be written where the config puts it
         error = ConfigError(f"cannot write {exc.filename or 'a sim-cell file'}: {exc.strerror or exc}")
@@ -220,36 +252,151 @@ def _start_robot(cfg: CellConfig, cell: Any, spec_path: Path, truth_path: Path,
     cell.write_robot_spec(spec_path)
     argv = [sys.executable, "-m", f"monoguide.drivers.sim.{r.make}_controller", "--spec", str(spec_path), "--truth",
             str(truth_path), "--host", r.host, "--port", str(r.port), "--move-time", str(r.sim_move_time_s),
-            "--seed", str(cell.spec.seed + 3), "--part-supply"]
+            "--seed", str(cell.spec.seed + 3), "--part-supply", "--commands"]
     if truth_log is not None:
         truth_log.resolve().parent.mkdir(parents=True, exist_ok=True)
         truth_log.write_text("")  # can it be written? (OSError: a config error naming it)
         argv += ["--truth-log", str(truth_log.resolve())]
-    started = _start(argv, "robot")
+    started = _start(argv, "robot", stdin=subprocess.PIPE)
     host, _, port = started.address.rpartition(":")
     return _StartedRobot(started.process, {"backend": r.backend, "host": host, "port": int(port),
                                            "pid": started.process.pid, "spec": str(spec_path),
                                            "truth": str(truth_path)})
 
 
-def _start_plc(cfg: CellConfig) -> _Started:
-    """Start the simulated line PLC on ``[plc] host:port`` with the block at ``base`` for ``unit``, playing parts."""
+def _start_plc(cfg: CellConfig, parts: int | None) -> _Started:
+    """Start the simulated line PLC on ``[plc] host:port`` with the block at ``base`` for ``unit``, playing parts
+    (``parts``: that many, then only its heartbeat); its standard input takes the fault commands."""
     p = cfg.plc
     assert p is not None
-    return _start([sys.executable, "-m", "monoguide.drivers.sim.plc", "--host", p.host, "--port", str(p.port),
-                   "--unit", str(p.unit), "--base", str(p.base), "--word-order", p.word_order,
-                   "--heartbeat-period", str(min(0.5, p.heartbeat_timeout_s / 4))], "plc", stdin=subprocess.DEVNULL)
+    argv = [sys.executable, "-m", "monoguide.drivers.sim.plc", "--host", p.host, "--port", str(p.port),
+            "--unit", str(p.unit), "--base", str(p.base), "--word-order", p.word_order,
+            "--heartbeat-period", str(min(0.5, p.heartbeat_timeout_s / 4))]
+    if parts is not None:
+        argv += ["--parts", str(parts)]
+    return _start(argv, "plc", stdin=subprocess.PIPE)
 
 
-def _echo_plc_records(plc: _Started | None, wait_s: float = 0.1) -> None:
-    """Wait ``wait_s``, echoing the PLC's per-part records meanwhile (its stdout pipe must not fill up)."""
-    if plc is None or plc.process.stdout is None or plc.process.poll() is not None:
+class _Lines:
+    """Whole lines read from a file descriptor once ``select`` finds it readable (a part line waits)."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+        self.open = True
+        self._buffer = b""
+
+    def read(self) -> list[str]:
+        try:
+            chunk = os.read(self.fd, 65536)
+        except OSError:
+            chunk = b""
+        if not chunk:  # end of input: what is left is the last line
+            self.open = False
+            chunk = b"\n"
+        *lines, self._buffer = (self._buffer + chunk).split(b"\n")
+        return [text for line in lines if (text := line.decode("utf-8", "replace").strip())]
+
+
+def _stdin_open() -> bool:
+    try:
+        os.fstat(0)
+    except OSError:
+        return False
+    return True
+
+
+def _stdin_readable_now() -> bool:
+    """Not a terminal of which we are in the background (reading it would stop us with SIGTTIN)."""
+    try:
+        return not os.isatty(0) or os.tcgetpgrp(0) == os.getpgrp()
+    except OSError:
+        return False
+
+
+def _serve_once(plc_lines: _Lines | None, commands: _Lines | None, faults: _FaultChannel,
+                wait_s: float = 0.1) -> None:
+    """Wait up to ``wait_s`` for the PLC's per-part records (echoed; its stdout pipe must not fill up) and for
+    fault commands on standard input (handled)."""
+    watched = {lines.fd: lines for lines in (plc_lines, commands) if lines is not None and lines.open}
+    if commands is not None and commands.fd in watched and not _stdin_readable_now():
+        del watched[commands.fd]
+    if not watched:
         time.sleep(wait_s)
         return
-    ready, _, _ = select.select([plc.process.stdout], [], [], wait_s)
-    if ready and (line := plc.process.stdout.readline().strip()):
-        typer.echo(f"plc: {line}")
+    ready, _, _ = select.select(list(watched), [], [], wait_s)
+    for fd in ready:
+        for line in watched[fd].read():
+            if watched[fd] is plc_lines:
+                typer.echo(f"plc: {line}")
+            else:
+                faults.handle(line)
         sys.stdout.flush()
+
+
+class _FaultChannel:
+    """The fault commands of standard input, checked, then forwarded to the device that plays them."""
+
+    def __init__(self, cfg: CellConfig, state_path: Path, state: dict[str, Any], plc: _Started | None,
+                 robot: subprocess.Popen[str] | None) -> None:
+        self.state_path, self.state = state_path, state
+        # the daemon's simulated camera reads the state file only in a cell whose robot is simulated too
+        # (daemon/assembly.py build_camera)
+        self.camera_follows = cfg.camera.backend == "sim" and cfg.robot is not None and cfg.robot.simulated
+        self.children = {"plc": plc.process if plc is not None else None, "robot": robot}
+        self.absent = {"plc": "no simulated PLC in this cell (--no-plc, or no [plc] section)",
+                       "robot": "no simulated robot in this cell ([robot] backend is not sim-ur or sim-kuka)"}
+        self.serial = 0
+
+    def handle(self, text: str) -> None:
+        if text.startswith("#"):
+            return
+        try:
+            device, fault, count = self._forward(text)
+        except ValueError as exc:
+            typer.echo(f"fault error: {exc}", err=True)
+            return
+        log.info("fault %s %s%s", device, fault, f" x{count}" if count is not None else "")
+        typer.echo(f"fault: {device} {fault}")
+
+    def _forward(self, text: str) -> tuple[str, str, int | None]:
+        device, *words = text.split()
+        if device not in FAULT_COMMANDS:
+            raise ValueError(f"{text!r}: unknown device {device!r}; expected one of {', '.join(FAULT_COMMANDS)}")
+        names = FAULT_COMMANDS[device]
+        if not words:
+            raise ValueError(f"{text!r}: which fault? {device} takes {', '.join(names)}")
+        fault, *rest = words
+        if fault not in names:
+            raise ValueError(f"{text!r}: unknown {device} fault {fault!r}; expected one of {', '.join(names)}")
+        if device == "camera":
+            return device, fault, self._camera(text, fault, rest)
+        if rest:
+            raise ValueError(f"{text!r}: {device} {fault} takes nothing more, got {' '.join(rest)!r}")
+        child = self.children[device]
+        if child is None:
+            raise ValueError(f"{text!r}: {self.absent[device]}")
+        try:
+            assert child.stdin is not None
+            child.stdin.write(fault + "\n")
+            child.stdin.flush()
+        except OSError as exc:
+            raise ValueError(f"{text!r}: the simulated {device} (pid {child.pid}) is gone: {exc}") from exc
+        return device, fault, None
+
+    def _camera(self, text: str, failure: str, rest: list[str]) -> int:
+        if not self.camera_follows:
+            raise ValueError(f"{text!r}: no simulated camera follows this cell ([camera] backend 'sim' and [robot] "
+                             f"backend 'sim-ur' or 'sim-kuka' needed)")
+        if len(rest) > 1 or (rest and not rest[0].isdigit()) or not 1 <= (count := int(rest[0]) if rest else 1) \
+                <= MAX_CAMERA_COUNT:
+            raise ValueError(f"{text!r}: count must be a whole number of grabs, 1 to {MAX_CAMERA_COUNT}")
+        self.serial += 1
+        self.state["camera_fault"] = {"failure": failure, "count": count, "serial": self.serial}
+        try:
+            write_sim_state(self.state_path, self.state)
+        except OSError as exc:
+            raise ValueError(f"{text!r}: cannot write the state file {self.state_path}: {exc}") from exc
+        return count
 
 
 class _Started:
@@ -289,5 +436,7 @@ def _stop_all(children: list[subprocess.Popen[str]]) -> None:
             log.warning("simulated device pid %d ignored SIGTERM; killing it", child.pid)
             child.kill()
             child.wait(timeout=STOP_TIMEOUT_S)
-        if child.stdout is not None:
-            child.stdout.close()
+        for stream in (child.stdin, child.stdout):
+            if stream is not None:
+                with contextlib.suppress(OSError):  # a pipe to a process that is gone
+                    stream.close()

@@ -118,6 +118,7 @@ TRANSITIONS: Mapping[State, Mapping[Cause, State]] = {
     },
     State.AWAITING_ACK: {
         Cause.RESULT_ACKNOWLEDGED: State.IDLE,
+        Cause.DEVICE_LOST: State.STARTING,  # the PLC's connection lost: it sees status 0 on reconnecting
         Cause.ACK_TIMEOUT: State.FAULT,
         Cause.HEARTBEAT_LOST: State.FAULT,
         Cause.STOP: State.STOPPED,

@@ -179,6 +179,16 @@ class Journal:
             )
         return int(cursor.lastrowid)
 
+    def amend_timings(self, number: int, timings_s: dict[str, float]) -> None:
+        """Add timings known only after the commit (``plc_journal``, ``cycle``: they include the commit and
+        the PLC's DONE) to cycle ``number``'s row; the rest of the row is never changed."""
+        with self._sqlite(f"amend cycle {number}"), self._db:
+            found = self._db.execute("SELECT timings_json FROM cycle WHERE number = ?", (number,)).fetchone()
+            if found is None:
+                raise JournalEntryMissing(f"journal {self.path}: no cycle {number}")
+            self._db.execute("UPDATE cycle SET timings_json = ? WHERE number = ?",
+                             (_dumps("timings_s", {**json.loads(found[0]), **timings_s}), number))
+
     # --- reading ------------------------------------------------------------------------------------
 
     def cycle_counter(self) -> int:
@@ -244,7 +254,9 @@ class Journal:
 
     def _open(self) -> sqlite3.Connection:
         try:
-            db = sqlite3.connect(self.path, timeout=BUSY_TIMEOUT_MS / 1000, isolation_level="DEFERRED")
+            # check_same_thread off: the service commits from a worker thread, one call at a time
+            db = sqlite3.connect(self.path, timeout=BUSY_TIMEOUT_MS / 1000, isolation_level="DEFERRED",
+                                 check_same_thread=False)
         except sqlite3.Error as exc:
             raise JournalError(f"journal {self.path}: cannot open: {exc}") from exc
         try:

@@ -4,13 +4,24 @@ Each :meth:`SimCamera.grab` renders the holes of the current part (``SimCell.T_c
 robot's actual pose (``SimCell.actual_camera_pose()``) through the cell's camera model, with the hole
 renderer's blur, noise and uneven light. Exposure and gain change the brightness. It can be told to fail
 (:meth:`SimCamera.fail_next`): ``timeout``, ``disconnect``, ``black`` frame, hole ``occluded``, ``glare``.
+
+With ``follow`` (the state file of a running ``monoguide sim-cell``) the camera lives in the daemon's process
+but sees the simulated robot of the sim-cell's controller process: before every grab it reads the state
+file's ``robot.truth`` and stands where that robot stands, with the part its part supply presents
+(:func:`~monoguide.drivers.sim.robot_motion.follow_truth`); and it applies the state file's
+``camera_fault`` (``{"failure", "count", "serial"}``, written on a ``camera <failure> [count]`` command to
+sim-cell) once per ``serial``. A fault already in the file when the camera opens is history, not applied.
+Without a state file (no sim-cell running) it renders its own cell as without ``follow``.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import time
 from dataclasses import replace
+from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -19,6 +30,7 @@ from monoguide.drivers.camera import CameraIdentity, CameraSettings, Frame
 from monoguide.drivers.errors import DeviceDisconnected, DeviceSettingRejected, DeviceTimeout
 from monoguide.drivers.sim.cell import SimCell
 from monoguide.drivers.sim.hole_renderer import Glare, HoleSpec, RenderedView, RenderSettings, render_view
+from monoguide.drivers.sim.robot_motion import follow_truth
 
 log = logging.getLogger(__name__)
 
@@ -30,8 +42,11 @@ class SimCamera:
     """:class:`~monoguide.drivers.camera.Camera` reading a :class:`SimCell`. ``last_view`` keeps the last
     rendering's ground truth (``centers_px`` in full-sensor pixels, ``in_view``)."""
 
-    def __init__(self, cell: SimCell, render: RenderSettings | None = None, seed: int | None = None) -> None:
+    def __init__(self, cell: SimCell, render: RenderSettings | None = None, seed: int | None = None,
+                 follow: Path | None = None) -> None:
         self.cell = cell
+        self.follow = follow
+        self._fault_serial: int | None = None
         render = render or RenderSettings()
         if render.focus_distance_mm is None and cell.spec.focus_distance_mm is not None:  # the cell's own lens
             render = replace(render, focus_distance_mm=cell.spec.focus_distance_mm, aperture_mm=cell.spec.aperture_mm)
@@ -49,6 +64,9 @@ class SimCamera:
         return self._identity if self._open else None
 
     def open(self) -> CameraIdentity:
+        if self.follow is not None:
+            fault = self._read_state().get("camera_fault")
+            self._fault_serial = _serial(fault)
         self._open = True
         self._frames = 0
         return self._identity
@@ -73,6 +91,8 @@ class SimCamera:
 
     def grab(self, timeout_s: float) -> Frame:
         self._require_open()
+        if self.follow is not None:
+            self._follow_cell()
         failure = self._failures.pop(0) if self._failures else None
         if failure == "timeout":
             time.sleep(min(timeout_s, MAX_SIM_TIMEOUT_S))
@@ -93,6 +113,41 @@ class SimCamera:
         self._open = False
 
     # --- private -------------------------------------------------------------------------------
+
+    def _read_state(self) -> dict[str, Any]:
+        """The sim-cell state file; empty when there is none (no sim-cell runs: the camera sees its own cell)."""
+        assert self.follow is not None
+        try:
+            state = json.loads(Path(self.follow).read_text())
+        except FileNotFoundError:
+            return {}
+        except (OSError, ValueError) as exc:
+            raise DeviceDisconnected(f"sim camera: cannot read the sim-cell state file {self.follow}: {exc} "
+                                     f"(is `monoguide sim-cell` running?)") from exc
+        if not isinstance(state, dict):
+            raise DeviceDisconnected(f"sim camera: {self.follow} is not a sim-cell state file")
+        return state
+
+    def _follow_cell(self) -> None:
+        """Stand where the sim-cell's robot stands, see its part, and take up a newly commanded fault."""
+        state = self._read_state()
+        fault = state.get("camera_fault")
+        serial = _serial(fault)
+        if serial is not None and serial != self._fault_serial:
+            self._fault_serial = serial
+            try:
+                self.fail_next(str(fault["failure"]), int(fault.get("count", 1)))  # type: ignore[index,union-attr]
+                log.info("sim camera: %s for the next %s grabs (fault %d)", fault["failure"],  # type: ignore[index]
+                         fault.get("count", 1), serial)  # type: ignore[union-attr]
+            except (ValueError, TypeError) as exc:
+                log.warning("sim camera: ignoring camera_fault %r: %s", fault, exc)
+        truth = (state.get("robot") or {}).get("truth")
+        if not truth:  # no sim-cell (or one without a robot): the camera's own cell, at its own pose
+            return
+        try:
+            follow_truth(self.cell, Path(truth))
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise DeviceDisconnected(f"sim camera: cannot follow the simulated robot ({truth}): {exc}") from exc
 
     def _render(self, failure: str | None) -> RenderedView:
         cell = self.cell
@@ -122,6 +177,13 @@ class SimCamera:
     def _require_open(self) -> None:
         if not self._open:
             raise DeviceDisconnected("sim camera: not open")
+
+
+def _serial(fault: object) -> int | None:
+    """The serial number of a ``camera_fault`` entry, None when there is none (or it is malformed)."""
+    if isinstance(fault, dict) and isinstance(fault.get("serial"), int):
+        return int(fault["serial"])
+    return None
 
 
 def _first_in_image(cell: SimCell, T_c_w: np.ndarray, holes: list[HoleSpec]) -> tuple[float, float]:

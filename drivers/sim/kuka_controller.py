@@ -2,10 +2,11 @@
 
 Run as ``python -m monoguide.drivers.sim.kuka_controller --spec ROBOT.json --truth TRUTH.json --host
 127.0.0.60``. It prints ``LISTEN robot <host>:<port>`` and serves until SIGTERM/SIGINT or until its parent
-goes away. Each client gets a ``<Robot>`` report every ``REPORT_PERIOD_S`` (the first with ``<Identity>``)
-and one right after each request it takes; ``<Sensor>`` requests feed :class:`SimRobotProgram`, as the KRL
-program ``config/kuka/monoguide.src`` would. A malformed or hostile message is logged and dropped, never
-obeyed; the connection stays.
+goes away; with ``--commands`` each line of standard input is a fault (``robot_motion.FAULT_MODES``).
+Each client gets a ``<Robot>`` report every ``REPORT_PERIOD_S`` (the first with ``<Identity>``) and one
+right after each request it takes; ``<Sensor>`` requests feed :class:`SimRobotProgram`, as the KRL program
+``config/kuka/monoguide.src`` would. A malformed or hostile message is logged and dropped, never obeyed; the
+connection stays.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from monoguide.drivers.sim import part_supply
 from monoguide.drivers.sim.robot_motion import (
     FAULT_MODES,
     SimRobotProgram,
+    apply_command,
     load_robot_spec,
     run_program,
     serve_controller,
@@ -83,6 +85,12 @@ class KukaController:
             writer.transport.abort()
         self.writers.clear()
 
+    def command(self, text: str) -> None:
+        """A fault command at run time (``none`` clears): a stall ends at once, the reports flow again."""
+        if apply_command(self.program.set_fault, text) and self.program.fault != "stall" and self.stalled:
+            log.info("stall ends: the controller answers again")
+            self.stalled = False
+
     def report(self, identity: bool = False) -> bytes:
         p = self.program
         return kuka.encode_report(kuka.KukaReport(
@@ -130,6 +138,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--move-time", type=float, default=0.5, help="seconds per move to a measuring pose")
     parser.add_argument("--fault", default="none", choices=FAULT_MODES)
     parser.add_argument("--seed", type=int, default=None)
+    parser.add_argument("--commands", action="store_true",
+                        help="read fault commands from standard input, one per line (none clears)")
     part_supply.add_arguments(parser)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="sim-kuka: %(message)s")
@@ -138,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
                               args.move_time, args.fault, supply=part_supply.from_arguments(args))
     controller = KukaController(program, args.spec, args.truth)
     return asyncio.run(serve_controller(controller.serve_client, args.host, args.port, controller.run_program,
-                                        controller.drop_all))
+                                        controller.drop_all, controller.command if args.commands else None))
 
 
 if __name__ == "__main__":

@@ -5,9 +5,15 @@ The server is the genuine pymodbus TCP server over the ``SimDevice``/``SimData``
 3.16 recommends (the older ``ModbusDeviceContext`` / ``ModbusSequentialDataBlock`` log deprecation
 warnings). :class:`LinePlc` plays one part after another: a part arrives (job, part tag), it waits for
 READY, sets TRIGGER, waits for DONE, reads the result, sets RESULT_ACK and drops TRIGGER, waits for DONE to
-clear and drops RESULT_ACK; meanwhile it toggles its heartbeat. Faults on command (:data:`FAULTS`):
-``trigger-dropped-early`` (TRIGGER dropped as soon as BUSY is seen), ``heartbeat-stopped``, ``no-ack``
-(DONE is never acknowledged). A FAULT status is answered with a FAULT_RESET pulse once the heartbeat runs.
+clear and drops RESULT_ACK; meanwhile it toggles its heartbeat. Faults on command (:data:`FAULTS`; ``none``
+clears the fault, each applies from the moment it is given): ``trigger-dropped-early`` (TRIGGER dropped as
+soon as BUSY is seen), ``heartbeat-stopped`` (the heartbeat register stops changing; ``none`` starts it
+again), ``no-ack`` (DONE is never acknowledged; TRIGGER drops when the next part arrives; the service's
+acknowledgement timeout then sets FAULT, which the line resets as below). A FAULT status is answered with a
+FAULT_RESET pulse (half a heartbeat period long, repeated every period while FAULT stands) once the
+heartbeat runs. What the service reports for each (``drivers/errors.py``, ``docs/plc-interface.md``):
+trigger-dropped-early ``PLC_TRIGGER_DROPPED`` (453, ERROR), heartbeat-stopped ``PLC_HEARTBEAT_LOST`` (452,
+FAULT), no-ack ``PLC_ACK_TIMEOUT`` (454, FAULT after ``[plc] ack_timeout_s``).
 
 Run in its own process: ``python -m monoguide.drivers.sim.plc --host 127.0.0.x --port N``. It prints
 ``LISTEN plc HOST:PORT`` when it serves, then one JSON line per finished part; each line read from
@@ -147,10 +153,7 @@ class LinePlc:
         record.update(_result_record(outputs))
         if self.fault == "no-ack":
             return self._finish(record, "not acknowledged")
-        await self._set(Control.RESULT_ACK)
-        cleared = await self._wait_status(lambda s: not s & (Status.DONE | Status.RESULT_OK | Status.ERROR))
-        await self._set(0)
-        return self._finish(record, "acknowledged" if cleared else "DONE not cleared")
+        return self._finish(record, "acknowledged" if await self._acknowledge() else "DONE not cleared")
 
     async def heartbeat(self) -> None:
         """Change the PLC heartbeat every period (unless stopped by command); answer FAULT with FAULT_RESET."""
@@ -174,6 +177,13 @@ class LinePlc:
                                         now[3] if part_tag is None else part_tag))
         await self.server.write(CONTROL, [words[0], words[1]])  # the heartbeat is the heartbeat task's
         await self.server.write(3, [words[3]])
+
+    async def _acknowledge(self) -> bool:
+        """RESULT_ACK with TRIGGER low until DONE, RESULT_OK and ERROR clear, then both low."""
+        await self._set(Control.RESULT_ACK)
+        cleared = await self._wait_status(lambda s: not s & (Status.DONE | Status.RESULT_OK | Status.ERROR))
+        await self._set(0)
+        return cleared
 
     async def _wait_status(self, done: Callable[[Status], bool]) -> bool:
         deadline = asyncio.get_running_loop().time() + self.timing.wait_timeout_s

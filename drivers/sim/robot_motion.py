@@ -11,10 +11,22 @@ The truth comes from the robot spec file that :meth:`SimCell.write_robot_spec` w
 changes: a new part); what the robot did goes to a truth file (:func:`read_truth`) that the in-process
 simulated camera follows (:meth:`SimCell.set_actual_flange_pose`) and tests score against.
 
-Failure modes on command (``--fault``), applied from the first request on: ``stall`` (the controller
-freezes: nothing answered, nothing sent), ``drop`` (it closes every connection), ``protective-stop``
-(safety stop, no motion), ``never-reach`` (moves but never arrives), ``no-ack`` (offsets are never
-acknowledged); and from the start ``program-stopped`` (the robot program is not running).
+Failure modes (:data:`FAULT_MODES`), set at start (``--fault``) or at run time (``--commands``: one fault
+per line on standard input, ``none`` clears it; :meth:`SimRobotProgram.set_fault`), each applied from the
+next request on: ``stall`` (the controller freezes: nothing answered, nothing sent), ``drop`` (it closes
+every connection), ``protective-stop`` (safety stop, no motion), ``never-reach`` (moves but never arrives;
+also a move under way), ``no-ack`` (offsets are neither taken nor acknowledged: the part keeps no offset);
+and at once ``program-stopped`` (the robot program is not running). ``none`` ends a stall and a protective
+stop: the controller answers again and its safety is back to normal. What the robot adapter (and so the
+service, on the PLC) reports for each (``drivers/errors.py``): stall ``DEVICE_TIMEOUT`` (402), drop
+``DEVICE_DISCONNECTED`` (403), protective-stop ``ROBOT_PROTECTIVE_STOP`` (422), never-reach
+``ROBOT_POSITION_TIMEOUT`` (423), no-ack ``ROBOT_ACK_TIMEOUT`` (424), program-stopped ``ROBOT_NOT_READY``
+(421).
+
+Order of truth and wire: the move that arrives and the truth file that says so are one synchronous step
+of the program loop (:meth:`SimRobotProgram.tick` then :func:`write_truth`, no ``await`` between them), and
+the controllers send their state only from other tasks of the same event loop; so the truth file (stops,
+``in_position``, the part's ``T_cf_w``) is on disk before a client can see "in position" on the wire.
 """
 
 from __future__ import annotations
@@ -27,6 +39,8 @@ import logging
 import math
 import os
 import signal
+import sys
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -109,6 +123,15 @@ class SimRobotProgram:
             raise ValueError(f"fault must be one of {FAULT_MODES}, got {self.fault!r}")
         self.T_b_f = self._stop_at(1)  # the robot starts at measuring pose S1
         self.in_position = 1
+
+    def set_fault(self, fault: str) -> None:
+        """Change the failure mode at run time (``none``: clear it); a protective stop ends with its mode."""
+        if fault not in FAULT_MODES:
+            raise ValueError(f"fault {fault!r}: expected one of {', '.join(FAULT_MODES)}")
+        if fault != "protective-stop":
+            self.safety = "NORMAL"
+        log.info("fault %s (was %s)", fault, self.fault)
+        self.fault = fault
 
     @property
     def program_running(self) -> bool:
@@ -198,6 +221,9 @@ class SimRobotProgram:
         return compose(s.T_b_f_taught[number - 1], noise)
 
     def _apply_offset(self, sequence: int, D_b: np.ndarray, received: tuple[float, ...]) -> None:
+        if self.fault == "no-ack":  # the program never takes it: nothing applied, nothing acknowledged
+            log.info("offset %d not taken (fault no-ack)", sequence)
+            return
         error_mm, error_deg = grasp_error(D_b, self.spec.T_b_g0, self.spec.T_b_w, self.spec.T_b_w0)
         self.offsets.append(AppliedOffset(sequence, self.spec.part, received, np.array(D_b, dtype=float),
                                           error_mm, error_deg))
@@ -205,8 +231,7 @@ class SimRobotProgram:
             self.supply.offset_applied(self.spec.part, D_b, error_mm, error_deg)
         log.info("offset %d for part %d: grasp error %.4f mm %.5f deg", sequence, self.spec.part, error_mm,
                  error_deg)
-        if self.fault != "no-ack":
-            self._answer(sequence, PROGRAM_OK)
+        self._answer(sequence, PROGRAM_OK)
 
     def _answer(self, sequence: int, status: int) -> None:
         self.program_status = status
@@ -225,7 +250,7 @@ async def run_program(program: SimRobotProgram, spec_path: Path, truth_path: Pat
                 program.reload(load_robot_spec(spec_path))
             except (OSError, ValueError, KeyError) as exc:
                 log.warning("keeping the old spec, cannot re-read %s: %s", spec_path, exc)
-        if not stalled():
+        if not stalled():  # one synchronous step: the truth is on disk before any task sends the new state
             program.tick(now())
             write_truth(truth_path, program.truth())
         with contextlib.suppress(asyncio.TimeoutError):
@@ -235,9 +260,11 @@ async def run_program(program: SimRobotProgram, spec_path: Path, truth_path: Pat
 
 
 async def serve_controller(client_handler: Callable[..., object], host: str, port: int,
-                           program: Callable[[asyncio.Event], object], drop_all: Callable[[], None]) -> int:
+                           program: Callable[[asyncio.Event], object], drop_all: Callable[[], None],
+                           command: Callable[[str], None] | None = None) -> int:
     """Listen on ``host:port``, print ``LISTEN robot host:port``, run the program loop, until SIGTERM/SIGINT
-    or until the parent process is gone; then close every connection."""
+    or until the parent process is gone; then close every connection. ``command``: called in the loop with
+    each line of standard input (fault commands); the end of the input is fine."""
     # noted before LISTEN is printed: the parent may act on that line and die at once (a test killing a
     # sim-cell), and a parent noted after its death would be init's pid, never gone: an orphan for good
     parent = os.getppid()
@@ -248,6 +275,8 @@ async def serve_controller(client_handler: Callable[..., object], host: str, por
     server = await asyncio.start_server(client_handler, host, port, reuse_address=True)  # type: ignore[arg-type]
     print(f"LISTEN robot {host}:{port}", flush=True)
     task = loop.create_task(program(stop))  # type: ignore[arg-type]
+    if command is not None:
+        threading.Thread(target=_read_commands, args=(loop, command), daemon=True).start()
     while not stop.is_set() and os.getppid() == parent:
         with contextlib.suppress(asyncio.TimeoutError):
             await asyncio.wait_for(stop.wait(), 0.2)
@@ -256,6 +285,23 @@ async def serve_controller(client_handler: Callable[..., object], host: str, por
     drop_all()
     await task
     return 0
+
+
+def _read_commands(loop: asyncio.AbstractEventLoop, command: Callable[[str], None]) -> None:
+    """Standard input, one command a line, each handed to the event loop (a thread: reading blocks)."""
+    for text in sys.stdin:
+        if text.strip():
+            loop.call_soon_threadsafe(command, text.strip())
+
+
+def apply_command(set_fault: Callable[[str], None], text: str) -> bool:
+    """Apply one fault command line; a bad one is said on stderr (``error: ...``) and changes nothing."""
+    try:
+        set_fault(text)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr, flush=True)
+        return False
+    return True
 
 
 def grasp_error(D_b: np.ndarray, T_b_g0: np.ndarray, T_b_w: np.ndarray, T_b_w0: np.ndarray) -> tuple[float, float]:

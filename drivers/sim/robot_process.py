@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import select
 import subprocess
 import sys
@@ -23,17 +24,27 @@ class ControllerProcess:
     def stop(self) -> None:
         stop_process(self.process)
 
+    def command(self, fault: str) -> None:
+        """Set the controller's failure mode now (started with ``commands=True``; ``none`` clears it)."""
+        assert self.process.stdin is not None, "started without commands=True"
+        self.process.stdin.write(fault + "\n")
+        self.process.stdin.flush()
+
 
 def start_controller(kind: str, spec: Path, truth: Path, host: str, port: int | None = None,
-                     move_time_s: float = 0.1, fault: str = "none", seed: int | None = None) -> ControllerProcess:
-    """Start ``python -m monoguide.drivers.sim.<kind>_controller`` and wait for its ``LISTEN`` line."""
+                     move_time_s: float = 0.1, fault: str = "none", seed: int | None = None,
+                     commands: bool = False) -> ControllerProcess:
+    """Start ``python -m monoguide.drivers.sim.<kind>_controller`` and wait for its ``LISTEN`` line;
+    ``commands``: its standard input is a pipe for :meth:`ControllerProcess.command`."""
     argv = [sys.executable, "-m", CONTROLLER_MODULES[kind], "--spec", str(spec), "--truth", str(truth),
             "--host", host, "--move-time", str(move_time_s), "--fault", fault]
     if port is not None:
         argv += ["--port", str(port)]
     if seed is not None:
         argv += ["--seed", str(seed)]
-    process = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True)
+    if commands:
+        argv.append("--commands")
+    process = subprocess.Popen(argv, stdin=subprocess.PIPE if commands else None, stdout=subprocess.PIPE, text=True)
     assert process.stdout is not None
     ready, _, _ = select.select([process.stdout], [], [], START_TIMEOUT_S)
     words = process.stdout.readline().split() if ready else []
@@ -52,5 +63,7 @@ def stop_process(process: subprocess.Popen[str]) -> None:
         except subprocess.TimeoutExpired:
             process.kill()
             process.wait(STOP_TIMEOUT_S)
-    if process.stdout is not None:
-        process.stdout.close()
+    for stream in (process.stdin, process.stdout):
+        if stream is not None:
+            with contextlib.suppress(OSError):  # a pipe to a process that is gone
+                stream.close()

@@ -2,7 +2,8 @@
 
 Run as ``python -m monoguide.drivers.sim.ur_controller --spec ROBOT.json --truth TRUTH.json --host
 127.0.0.50``. It prints ``LISTEN robot <host>:<port>`` on stdout and serves until SIGTERM/SIGINT or until its
-parent goes away. Like a real controller it answers the protocol and controller version, output recipes
+parent goes away; with ``--commands`` each line of standard input is a fault
+(``robot_motion.FAULT_MODES``). Like a real controller it answers the protocol and controller version, output recipes
 (``NOT_FOUND`` for variables it does not know) and input recipes (``IN_USE`` for registers another client
 holds), start and pause, and sends data packages at each recipe's frequency. The robot program's part —
 moving, in position, applying an offset, the grasp error — is :class:`SimRobotProgram`, fed from the
@@ -27,6 +28,7 @@ from monoguide.drivers.sim import part_supply
 from monoguide.drivers.sim.robot_motion import (
     FAULT_MODES,
     SimRobotProgram,
+    apply_command,
     load_robot_spec,
     run_program,
     serve_controller,
@@ -119,6 +121,15 @@ class UrController:
         for client in list(self.clients):
             client.writer.transport.abort()
             self._forget(client)
+
+    def command(self, text: str) -> None:
+        """A fault command at run time (``none`` clears): a stall ends at once, the data flows again."""
+        if apply_command(self.program.set_fault, text) and self.program.fault != "stall" and self.stalled:
+            log.info("stall ends: the controller answers again")
+            self.stalled = False
+            for c in self.clients:
+                if c.started and c.outputs is not None and c.sender is None:
+                    c.sender = asyncio.get_running_loop().create_task(self._send_outputs(c))
 
     # --- the robot program loop ---------------------------------------------------------------
 
@@ -265,6 +276,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--move-time", type=float, default=0.5, help="seconds per move to a measuring pose")
     parser.add_argument("--fault", default="none", choices=FAULT_MODES)
     parser.add_argument("--seed", type=int, default=None)
+    parser.add_argument("--commands", action="store_true",
+                        help="read fault commands from standard input, one per line (none clears)")
     part_supply.add_arguments(parser)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="sim-ur: %(message)s")
@@ -273,7 +286,7 @@ def main(argv: list[str] | None = None) -> int:
                               args.move_time, args.fault, supply=part_supply.from_arguments(args))
     controller = UrController(program, args.spec, args.truth)
     return asyncio.run(serve_controller(controller.serve_client, args.host, args.port, controller.run_program,
-                                        controller.drop_all))
+                                        controller.drop_all, controller.command if args.commands else None))
 
 
 if __name__ == "__main__":

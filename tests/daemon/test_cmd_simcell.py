@@ -7,6 +7,7 @@ import asyncio
 import contextlib
 import json
 import os
+import queue
 import select
 import signal
 import socket
@@ -14,15 +15,19 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 from monoguide.daemon.assembly import build_robot, build_sim_cell
+from monoguide.daemon.cmd_simcell import FAULT_COMMANDS
 from monoguide.daemon.config import CellConfig, load_cell_config
+from monoguide.drivers.errors import RobotProtectiveStop
 from monoguide.drivers.modbus_plc import ModbusPlc
-from monoguide.drivers.plc_registers import PlcInputs, PlcOutputs
+from monoguide.drivers.plc_registers import CycleResult, PlcInputs, PlcOutputs, Status
 from monoguide.drivers.sim.robot_motion import follow_truth
 from monoguide.solver.frames import T_to_kuka_frame, invert, matrix_to_rotvec, transform_points
 
@@ -32,7 +37,8 @@ START_S = 40.0  # two cells built at once on a shared machine
 
 def _sim_cell(state: Path) -> subprocess.Popen[str]:
     return subprocess.Popen([sys.executable, "-m", "monoguide.daemon.cli", "sim-cell", "--config", str(SIM_CELL),
-                             "--state-file", str(state)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                             "--state-file", str(state)], stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
 
 
 def _first_line(process: subprocess.Popen[str], timeout_s: float = START_S) -> str:
@@ -141,8 +147,8 @@ def _cell_config(tmp_path: Path, robot_host: str, plc_host: str) -> Path:
 def _run_sim_cell(config: Path, state: Path, *options: str) -> tuple[subprocess.Popen[str], list[str]]:
     """Start sim-cell; its stdout lines up to the state file's (it runs then)."""
     process = subprocess.Popen([sys.executable, "-m", "monoguide.daemon.cli", "sim-cell", "--config", str(config),
-                                "--state-file", str(state), *options], stdout=subprocess.PIPE,
-                               stderr=subprocess.DEVNULL, text=True)
+                                "--state-file", str(state), *options], stdin=subprocess.DEVNULL,
+                               stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     assert process.stdout is not None
     lines: list[str] = []
     watchdog = threading.Timer(START_S, process.kill)  # readline, not select: lines wait in the text buffer
@@ -303,3 +309,149 @@ def test_the_part_supply_is_seeded_by_the_config(tmp_path: Path) -> None:
     data = json.loads(spec.read_text())
     other = PartSupply(data["seed"] + 1, data["part_supply"], np.array(data["T_b_g0"]), None)
     assert not np.allclose(other.arrive(), parts[0])
+
+
+# --- the fault channel and --parts (issue 10/11) --------------------------------------------------
+
+
+class _Output:
+    """A stream's lines as they come (a reader thread); :meth:`expect` takes the first one not yet taken that
+    starts with a prefix, waiting for it with a deadline."""
+
+    def __init__(self, stream: Any) -> None:
+        self.lines: queue.Queue[str] = queue.Queue()
+        self.pending: list[str] = []
+        threading.Thread(target=lambda: [self.lines.put(line.strip()) for line in stream], daemon=True).start()
+
+    def expect(self, prefix: str, timeout_s: float = 5.0) -> str:
+        deadline = time.monotonic() + timeout_s
+        while True:
+            if match := [line for line in self.pending if line.startswith(prefix)]:
+                self.pending.remove(match[0])
+                return match[0]
+            if (left := deadline - time.monotonic()) <= 0:
+                pytest.fail(f"no line {prefix!r} within {timeout_s} s; not taken: {self.pending}")
+            with contextlib.suppress(queue.Empty):
+                self.pending.append(self.lines.get(timeout=left))
+
+
+def _command(process: subprocess.Popen[str], text: str) -> None:
+    assert process.stdin is not None
+    process.stdin.write(text + "\n")
+    process.stdin.flush()
+
+
+async def _play_monoguide(plc: ModbusPlc, cycles: int) -> list[int]:
+    """monoguide's side of ``cycles`` good cycles (READY, TRIGGER -> BUSY -> DONE|RESULT_OK, ACK -> READY); then
+    READY stays while the line should play no more. Returns the part tags the line triggered."""
+    tags: list[int] = []
+
+    async def until(condition: Callable[[PlcInputs], bool], timeout_s: float = 5.0) -> PlcInputs | None:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if condition(inputs := await plc.read_inputs()):
+                return inputs
+            await asyncio.sleep(0.01)
+        return None
+
+    for n in range(cycles + 1):
+        await plc.write_status(Status.READY)
+        triggered = await until(lambda i: i.trigger, 5.0 if n < cycles else 1.0)
+        if triggered is None:
+            break
+        tags.append(triggered.part_tag)
+        await plc.write_status(Status.BUSY)
+        await plc.write_result(CycleResult(0, n + 1, triggered.job, triggered.part_tag, (1.0, 2.0, 3.0, 0.1, 0.2,
+                                                                                          0.3)))
+        await plc.write_status(Status.DONE | Status.RESULT_OK)
+        assert await until(lambda i: i.result_ack and not i.trigger) is not None
+        await plc.write_status(Status(0))
+        assert await until(lambda i: not i.result_ack) is not None
+    return tags
+
+
+def test_fault_names_are_the_simulators_own() -> None:
+    from monoguide.drivers.sim.camera import FAILURES
+    from monoguide.drivers.sim.plc import FAULTS
+    from monoguide.drivers.sim.robot_motion import FAULT_MODES
+
+    assert FAULT_COMMANDS == {"plc": FAULTS, "robot": FAULT_MODES, "camera": FAILURES}
+
+
+def test_fault_commands_reach_each_device_and_parts_stop_after_n(tmp_path: Path) -> None:
+    config, state = _cell_config(tmp_path, "127.0.6.1", "127.0.6.2"), tmp_path / "s.json"
+    cfg = load_cell_config(config)
+    process = subprocess.Popen([sys.executable, "-m", "monoguide.daemon.cli", "sim-cell", "--config", str(config),
+                                "--state-file", str(state), "--parts", "2"], stdin=subprocess.PIPE,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    out, err = _Output(process.stdout), _Output(process.stderr)
+    pids: list[int] = []
+    try:
+        out.expect("state file", START_S)
+        running = json.loads(state.read_text())
+        pids = [running["tracker"]["pid"], running["robot"]["pid"], running["plc"]["pid"]]
+
+        # bad commands: said on stderr, the cell runs on
+        for bad, reason in (("laser on", "unknown device 'laser'"), ("plc melt", "unknown plc fault 'melt'"),
+                            ("robot", "which fault?"), ("camera black 0", "count must be"),
+                            ("camera black two", "count must be"), ("plc no-ack now", "takes nothing more")):
+            _command(process, bad)
+            assert reason in err.expect("fault error:"), bad
+        assert process.poll() is None
+
+        # camera: into the state file, a new serial per command
+        _command(process, "camera black 2")
+        assert out.expect("fault:") == "fault: camera black"
+        first = json.loads(state.read_text())["camera_fault"]
+        _command(process, "camera glare")
+        assert out.expect("fault:") == "fault: camera glare"
+        second = json.loads(state.read_text())["camera_fault"]
+        assert (first["failure"], first["count"]) == ("black", 2) and (second["failure"], second["count"]) == \
+            ("glare", 1)
+        assert second["serial"] > first["serial"]
+
+        # robot: a protective stop seen through the real adapter, then cleared
+        robot = build_robot(cfg, state)
+        robot.open()
+        try:
+            _command(process, "robot protective-stop")
+            assert out.expect("fault:") == "fault: robot protective-stop"
+            with pytest.raises(RobotProtectiveStop):
+                robot.move_to_measuring_pose(0)
+            _command(process, "robot none")
+            assert out.expect("fault:") == "fault: robot none"
+            deadline = time.monotonic() + 2.0
+            while robot.status().protective_stop and time.monotonic() < deadline:
+                time.sleep(0.02)
+            assert robot.move_to_measuring_pose(0).in_position == 1
+        finally:
+            robot.close()
+
+        async def plc_side() -> tuple[list[int], list[int], list[int]]:
+            plc = ModbusPlc("127.0.6.2", 5020, unit=1)
+            await plc.connect()
+            try:
+                tags = await _play_monoguide(plc, 2)  # --parts 2: a third trigger never comes
+                _command(process, "plc heartbeat-stopped")
+                out.expect("fault: plc heartbeat-stopped")
+                await asyncio.sleep(0.6)  # a beat under way may still land
+                stopped = [(await plc.read_inputs()).plc_heartbeat]
+                for _ in range(3):
+                    await asyncio.sleep(0.4)  # the simulated PLC beats every 0.5 s
+                    stopped.append((await plc.read_inputs()).plc_heartbeat)
+                _command(process, "plc none")
+                out.expect("fault: plc none")
+                await asyncio.sleep(1.2)
+                return tags, stopped, [(await plc.read_inputs()).plc_heartbeat]
+            finally:
+                await plc.close()
+
+        tags, stopped, again = asyncio.run(plc_side())
+        assert tags == [1001, 1002]
+        records = [json.loads(out.expect("plc: ").removeprefix("plc: ")) for _ in range(2)]
+        assert [r["part"] for r in records] == [1, 2] and all(r["outcome"] == "acknowledged" for r in records)
+        assert len(set(stopped)) == 1, f"the heartbeat kept changing: {stopped}"
+        assert again[0] != stopped[-1], "plc none did not start the heartbeat again"
+        assert process.poll() is None
+    finally:
+        _stop_cell(process, pids)

@@ -207,3 +207,15 @@ def test_an_error_cycle_keeps_its_code(tmp_path: Path) -> None:
     assert (row.status, row.error_code, row.plc_code, row.error_message) == (
         "error", "DEVICE_TIMEOUT", 402, "camera: no frame within 2 s")
     assert row.record is None and row.result is None
+
+
+def test_amend_timings_adds_the_timings_known_after_done_and_nothing_else(tmp_path: Path) -> None:
+    with Journal(tmp_path) as journal:
+        journal.commit_cycle(expected_entry(1, _record()))
+        journal.amend_timings(1, {"plc_journal": 0.004, "cycle": 2.5})
+        with pytest.raises(JournalEntryMissing, match="no cycle 2"):
+            journal.amend_timings(2, {"cycle": 1.0})
+    with Journal(tmp_path) as journal:
+        row, entry = journal.cycle(1), expected_entry(1, _record())
+        assert row.timings_s == {**entry.timings_s, "plc_journal": 0.004, "cycle": 2.5}
+        assert (row.record, row.result, row.image_paths) == (entry.record, entry.result, entry.image_paths)

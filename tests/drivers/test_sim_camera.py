@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
 import cv2
@@ -15,6 +16,7 @@ from monoguide.drivers.camera import Camera, CameraSettings
 from monoguide.drivers.errors import DeviceDisconnected, DeviceSettingRejected, DeviceTimeout
 from monoguide.drivers.sim.camera import SimCamera
 from monoguide.drivers.sim.cell import SimCell
+from monoguide.drivers.sim.robot_motion import TRUTH_FORMAT, write_truth
 from monoguide.solver.frames import invert, transform_points
 
 CONFIG = load_cell_config(Path(__file__).parents[2] / "config" / "sim-cell.toml")
@@ -148,3 +150,42 @@ def test_defocus_grows_away_from_the_cell_lens_focus(focus_factor: float) -> Non
     assert np.sqrt(sigma**2 - 1.0 / 12.0) == pytest.approx(expected, rel=0.12)
     if focus_factor != 1.0:
         assert expected > 2.0 * cam.render.blur_sigma_px  # clearly out of focus
+
+
+def test_following_a_sim_cell_sees_its_robot_and_part_and_takes_its_faults_once(tmp_path: Path) -> None:
+    """The daemon's camera follows the sim-cell through its state file: the controller's truth file says where
+    the robot stopped and which part it holds; ``camera_fault`` entries apply once per serial, and one already
+    there when the camera opens is history."""
+    truth_cell = SimCell(SPEC)  # the controller's side: a part, a stop at S2
+    T_cf_w = truth_cell.new_part()
+    T_b_f = truth_cell.move_to_measuring_pose(1)
+    truth_path, state_path = tmp_path / "robot-truth.json", tmp_path / "state.json"
+    write_truth(truth_path, {"format": TRUTH_FORMAT, "part": 1, "in_position": 2, "T_b_f": T_b_f.tolist(),
+                             "T_cf_w": T_cf_w.tolist(), "stops": {"2": T_b_f.tolist()}, "offsets": []})
+
+    def state(**extra: object) -> None:
+        state_path.write_text(json.dumps({"format": "monoguide.sim-cell-state/1", "robot": {"truth": str(truth_path)},
+                                          **extra}))
+
+    state(camera_fault={"failure": "timeout", "count": 1, "serial": 4})  # before the camera opened: not applied
+    camera = SimCamera(SimCell(SPEC), follow=state_path)  # its own cell: reference part, at S1
+    camera.open()
+    frame = camera.grab(1.0)
+    np.testing.assert_allclose(camera.cell.T_cf_w_true, T_cf_w)
+    assert camera.cell.current_pose == 1
+    expected = truth_px(truth_cell, 1)
+    assert np.linalg.norm(dark_centroid(frame.image, expected) - expected) < 1.0
+
+    state(camera_fault={"failure": "black", "count": 2, "serial": 5})
+    assert camera.grab(1.0).image.max() < 16
+    assert camera.grab(1.0).image.max() < 16
+    assert camera.grab(1.0).image.max() > 100  # two only, and serial 5 is not taken up again
+
+
+def test_following_without_a_sim_cell_renders_the_own_cell(tmp_path: Path) -> None:
+    camera = SimCamera(SimCell(SPEC), follow=tmp_path / "absent.json")
+    camera.open()
+    assert camera.grab(1.0).image.shape == (2058, 2456)
+    (tmp_path / "absent.json").write_text("{not json")
+    with pytest.raises(DeviceDisconnected, match="cannot read the sim-cell state file"):
+        camera.grab(1.0)

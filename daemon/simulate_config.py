@@ -1,0 +1,177 @@
+"""The cell config a ``monoguide simulate`` run uses: the given simulated cell, adjusted for this run.
+
+``derive_config`` reads the source config (``config/sim-cell.toml`` by default), changes only what the run
+asks for — ``[sim] seed``, ``[robot] backend`` (``sim-ur`` or ``sim-kuka``, with its port), ``[sim]
+repeatability_*`` (0 with ``--perfect-robot``), the robot's and the PLC's ``host`` (a loopback address of
+their own, so two runs never collide), ``[sim] state_file`` (in the run's work directory) — and writes it
+as TOML text into the work directory. The service and the simulated cell then read that file exactly as a
+line's ``monoguide run`` reads ``/etc/monoguide/cell.toml``.
+
+The TOML writer here covers what a cell config holds (tables, arrays of tables, strings, numbers,
+booleans, nested arrays); comments of the source are not carried over.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import random
+import re
+import socket
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from monoguide.drivers.errors import ConfigError
+
+ROBOTS = {"ur": ("sim-ur", 30004), "kuka": ("sim-kuka", 54600)}
+AUTO_HOST_NET = "127.77.0"  # a run without --host picks a free address 127.77.0.1 .. 127.77.0.254
+FAULT_TIMEOUTS = {  # --faults: shorter waits than a line's, so that a stalled device costs seconds, not minutes
+    "robot": {"move_timeout_s": 4.0, "ack_timeout_s": 1.5},
+    "plc": {"ack_timeout_s": 3.0},
+}
+_BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
+
+
+@dataclass(frozen=True)
+class DerivedCell:
+    """Where one run's files are: the config the children read, the service's state directory, the logs."""
+
+    config: Path
+    state_dir: Path
+    truth_log: Path
+    sim_state: Path
+    host: str
+    data: dict[str, Any]
+
+    @property
+    def plc_port(self) -> int:
+        return int(self.data["plc"].get("port", 502))
+
+    @property
+    def plc_unit(self) -> int:
+        return int(self.data["plc"].get("unit", 1))
+
+
+def derive_config(source: Path, work_dir: Path, *, seed: int | None = None, robot: str | None = None,
+                  perfect_robot: bool = False, host: str | None = None, faults: bool = False) -> DerivedCell:
+    """Write ``work_dir/cell.toml``, the run's config derived from ``source``; see the module's doc."""
+    try:
+        data = tomllib.loads(Path(source).read_text())
+    except OSError as exc:
+        raise ConfigError(f"--config {source}: cannot read it: {exc.strerror or exc}") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"--config {source}: not valid TOML: {exc}") from exc
+    for section in ("robot", "plc", "sim"):
+        if not isinstance(data.get(section), dict):
+            raise ConfigError(f"--config {source}: no [{section}] section; simulate needs a simulated cell "
+                              f"(config/sim-cell.toml) with a simulated robot and a PLC")
+    backend = str(data["robot"].get("backend", ""))
+    if not backend.startswith("sim-"):
+        raise ConfigError(f"--config {source}: [robot].backend = {backend!r}: simulate needs 'sim-ur' or 'sim-kuka'")
+    if robot is not None:
+        if robot not in ROBOTS:
+            raise ConfigError(f"--robot {robot}: expected one of {', '.join(ROBOTS)}")
+        data["robot"]["backend"], data["robot"]["port"] = ROBOTS[robot]
+    data["plc"].setdefault("port", 502)
+    robot_port = int(data["robot"].get("port", ROBOTS[data["robot"]["backend"].removeprefix("sim-")][1]))
+    host = host or pick_free_host((robot_port, int(data["plc"]["port"])))
+    data["robot"]["host"] = host
+    data["plc"]["host"] = host
+    sim = data["sim"]
+    if seed is not None:
+        sim["seed"] = int(seed)
+    if perfect_robot:
+        sim["repeatability_mm"] = 0.0
+        sim["repeatability_deg"] = 0.0
+    work_dir = Path(work_dir).resolve()
+    work_dir.mkdir(parents=True, exist_ok=True)
+    sim_state = work_dir / "sim-state.json"
+    sim["state_file"] = str(sim_state)
+    if faults:
+        for section, values in FAULT_TIMEOUTS.items():
+            for key, value in values.items():
+                data[section][key] = min(float(data[section].get(key, value)), value)
+    config = work_dir / "cell.toml"
+    config.write_text(f"# derived by `monoguide simulate` from {Path(source).resolve()}\n" + dumps_toml(data))
+    return DerivedCell(config, work_dir / "state", work_dir / "truth.jsonl", sim_state, host, data)
+
+
+def pick_free_host(ports: tuple[int, ...], net: str = AUTO_HOST_NET) -> str:
+    """A loopback address ``net.1 .. net.254`` where every one of ``ports`` can be bound now."""
+    start = random.randrange(254)
+    for k in range(254):
+        host = f"{net}.{(start + k) % 254 + 1}"
+        if all(port_free(host, port) for port in ports):
+            return host
+    raise ConfigError(f"no free loopback address {net}.1-254 for ports {ports}; give --host")
+
+
+def port_free(host: str, port: int) -> bool:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the simulated devices bind
+        try:
+            s.bind((host, port))
+        except OSError:
+            return False
+    return True
+
+
+# --- TOML text ----------------------------------------------------------------------------------
+
+
+def dumps_toml(data: dict[str, Any]) -> str:
+    """TOML text for ``data`` (what :func:`tomllib.loads` returns for a cell config): ``loads(dumps(d)) == d``."""
+    lines: list[str] = []
+    _table(lines, (), data)
+    return "\n".join(lines).lstrip("\n") + "\n"
+
+
+def _table(lines: list[str], path: tuple[str, ...], table: dict[str, Any], array_item: bool = False) -> None:
+    plain = {k: v for k, v in table.items() if not _is_table(v) and not _is_table_array(v)}
+    if path and (plain or array_item or not any(_is_table(v) or _is_table_array(v) for v in table.values())):
+        header = ".".join(_key(p) for p in path)
+        lines.append("")
+        lines.append(f"[[{header}]]" if array_item else f"[{header}]")
+    for key, value in plain.items():
+        lines.append(f"{_key(key)} = {_value(value)}")
+    for key, value in table.items():
+        if _is_table(value):
+            _table(lines, (*path, key), value)
+    for key, value in table.items():
+        if _is_table_array(value):
+            for item in value:
+                _table(lines, (*path, key), item, array_item=True)
+
+
+def _is_table(value: Any) -> bool:
+    return isinstance(value, dict)
+
+
+def _is_table_array(value: Any) -> bool:
+    return isinstance(value, list) and bool(value) and all(isinstance(v, dict) for v in value)
+
+
+def _key(key: str) -> str:
+    return key if _BARE_KEY.match(key) else json.dumps(key)
+
+
+def _value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "nan"
+        if math.isinf(value):
+            return "inf" if value > 0 else "-inf"
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value)  # JSON's escapes are TOML basic-string escapes
+    if isinstance(value, list):
+        return "[" + ", ".join(_value(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{_key(k)} = {_value(v)}" for k, v in value.items()) + "}"
+    raise ConfigError(f"cannot write {value!r} ({type(value).__name__}) as TOML")

@@ -1,0 +1,210 @@
+"""`monoguide simulate` (issue 11): the derived config, the summary from seeded witnesses, the report, and the
+whole run end to end (the simulated cell and the service as real processes), judged against the truth log."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from monoguide.daemon.config import load_cell_config
+from monoguide.daemon.journal import CycleEntry, Journal
+from monoguide.daemon.simulate_config import derive_config, dumps_toml
+from monoguide.daemon.simulate_report import write_report
+from monoguide.daemon.simulate_run import fault_plan, sample_process
+from monoguide.daemon.simulate_summary import InjectedFault, Targets, join_cycles, read_truth_log, summarize
+from monoguide.drivers.errors import ConfigError, DeviceTimeout, PlcTriggerDropped, RobotAckTimeout
+
+ROOT = Path(__file__).parents[2]
+SIM_CELL = ROOT / "config" / "sim-cell.toml"
+RUN_TIMEOUT_S = 300
+
+
+# --- the derived config -------------------------------------------------------------------------
+
+
+def test_the_toml_writer_round_trips_the_simulated_cell() -> None:
+    data = tomllib.loads(SIM_CELL.read_text())
+    assert tomllib.loads(dumps_toml(data)) == data
+    odd = {"a b": "quote \" and \\ and é", "t": {"x": [1, 2.5, -0.0, True], "u": {"deep": 1e-300}},
+           "arr": [{"k": 1, "sub": {"m": [[1.0, 2.0], [3.0, 4.0]]}}, {"k": 2}], "inline": [{"a": 1}, 2]}
+    assert tomllib.loads(dumps_toml(odd)) == odd
+
+
+def test_the_derived_config_changes_only_what_the_run_asks_for(tmp_path: Path) -> None:
+    cell = derive_config(SIM_CELL, tmp_path, seed=77, robot="kuka", perfect_robot=True, host="127.0.7.10")
+    cfg, source = load_cell_config(cell.config), load_cell_config(SIM_CELL)
+    assert (cfg.robot.backend, cfg.robot.port, cfg.robot.host) == ("sim-kuka", 54600, "127.0.7.10")
+    assert (cfg.plc.host, cfg.plc.port) == ("127.0.7.10", source.plc.port)
+    assert (cfg.sim.seed, cfg.sim.repeatability_mm, cfg.sim.repeatability_deg) == (77, 0.0, 0.0)
+    assert cfg.sim.state_file == tmp_path.resolve() / "sim-state.json"
+    np.testing.assert_array_equal(cfg.reference.T_cf_w0, source.reference.T_cf_w0)
+    assert [p.name for p in cfg.measuring_poses] == [p.name for p in source.measuring_poses]
+    assert cfg.robot.move_timeout_s == source.robot.move_timeout_s  # only --faults shortens the waits
+    again = derive_config(SIM_CELL, tmp_path / "b", robot="ur", faults=True)
+    cfg = load_cell_config(again.config)
+    assert (cfg.robot.backend, cfg.robot.port, cfg.sim.seed) == ("sim-ur", 30004, source.sim.seed)
+    assert cfg.robot.move_timeout_s < source.robot.move_timeout_s
+    assert again.host.startswith("127.77.0.")
+
+
+# --- the summary, from witnesses made here ---------------------------------------------------------
+
+
+def _witnesses(tmp_path: Path) -> tuple[list[dict], list, list[dict], list[InjectedFault]]:
+    """Six parts: four good, one failed with nothing written (camera), one failed after the robot applied its
+    offset (the unacknowledged write), and a trigger dropped by the line; seeded truth."""
+    rng = np.random.default_rng(11)
+    truth, records = [], []
+    with Journal(tmp_path / "state") as journal:
+        for part in range(1, 7):
+            ideal = rng.uniform(-50, 50, 6).tolist()
+            applied = (np.array(ideal) + rng.normal(0, 0.05, 6)).tolist()
+            error_mm, error_deg = float(rng.uniform(0.01, 0.3)), float(rng.uniform(0.001, 0.02))
+            good = part not in (3, 5)
+            written = applied if part != 3 else None
+            truth.append({"part": part, "T_cf_w": np.eye(4).tolist(), "offset_ideal": ideal, "offset_written": written,
+                          "grasp_error_mm": error_mm if written else None,
+                          "grasp_error_deg": error_deg if written else None})
+            timings = {"robot_motion": 2.0 + part / 10, "hole_finding": 0.05, "solve": 0.01, "checks": 0.002,
+                       "overhead": 0.03 + part / 1000, "cycle": 3.0}
+            error = None if good else (DeviceTimeout("grab") if part == 3 else RobotAckTimeout("robot ack"))
+            number = journal.commit_cycle(CycleEntry(
+                started_at=1.0, finished_at=2.0, job=1, part_tag=1000 + part,
+                result={"base_offset_xyzabc": [round(v, 6) for v in applied]} if part != 3 else None,
+                error=error, timings_s=timings))
+            f32 = np.array(applied, dtype=np.float32).astype(float).tolist()
+            records.append({"part": part, "part_tag": 1000 + part, "outcome": "acknowledged", "fault": "none",
+                            "result_ok": good, "error_code": 0 if good else error.plc_code, "cycle_counter": number,
+                            "offset_written": f32 if good else None})
+        journal.commit_cycle(CycleEntry(started_at=3.0, finished_at=3.5, job=1, part_tag=1007,
+                                        error=PlcTriggerDropped("dropped")))
+        records.append({"part": 7, "part_tag": 1007, "outcome": "acknowledged", "fault": "trigger-dropped-early",
+                        "result_ok": False, "error_code": PlcTriggerDropped.plc_code, "cycle_counter": 7,
+                        "offset_written": None})
+        rows = list(reversed(journal.last_cycles(10)))
+    faults = [InjectedFault(3, "camera", "timeout", ("DEVICE_TIMEOUT",)),
+              InjectedFault(5, "robot", "no-ack", ("ROBOT_ACK_TIMEOUT",)),
+              InjectedFault(7, "plc", "trigger-dropped-early", ("PLC_TRIGGER_DROPPED",))]
+    return records, rows, truth, faults
+
+
+def test_the_summary_agrees_with_the_truth_log_and_the_journal(tmp_path: Path) -> None:
+    records, rows, truth, faults = _witnesses(tmp_path)
+    cycles = join_cycles(records, rows, truth, faults)
+    summary = summarize(cycles, truth, rows, faults, {"rss_mb": 100.0, "rss_max_mb": 120.0}, Targets.for_run(False))
+    good_parts = [t for t in truth if t["part"] in (1, 2, 4, 6)]
+    mm = np.array([t["grasp_error_mm"] for t in good_parts])
+    deg = np.array([t["grasp_error_deg"] for t in good_parts])
+    assert summary["cycles"] == 7 and summary["ok"] == 4 and summary["grasped"] == 4
+    assert math.isclose(summary["grasp_rms_mm"], float(np.sqrt(np.mean(mm**2))), rel_tol=1e-12)
+    assert math.isclose(summary["grasp_rms_deg"], float(np.sqrt(np.mean(deg**2))), rel_tol=1e-12)
+    assert summary["grasp_max_mm"] == mm.max()
+    assert summary["errors"] == {"DEVICE_TIMEOUT": 1, "PLC_TRIGGER_DROPPED": 1, "ROBOT_ACK_TIMEOUT": 1}
+    # part 5's offset reached the robot but its cycle failed: not hidden, filed as unacknowledged (robot no-ack)
+    assert (summary["offsets_written_on_failure"], summary["offsets_unacknowledged"]) == (0, 1)
+    assert summary["overhead_ms_median"] == 1000 * float(np.median([0.03 + p / 1000 for p in (1, 2, 4, 6)]))
+    assert summary["compute_ms_median"] == 62.0
+    assert [c["truth_part"] for c in cycles] == [1, 2, None, 4, None, 6, None]
+    assert [f["reported"] for f in summary["faults"]] == [True, True, True]
+    assert summary["faults"][2]["back_ready"] is False  # nothing good after the last fault
+    by_name = {t["name"]: t["met"] for t in summary["targets"]}
+    assert by_name["grasp_rms_mm"] and by_name["overhead_ms_median"] and by_name["offsets_written_on_failure"]
+    # the same offset without the injected robot no-ack is an offset written on failure
+    summary = summarize(join_cycles(records, rows, truth, faults[:1]), truth, rows, faults[:1])
+    assert summary["offsets_written_on_failure"] == 1
+    assert not next(t for t in summary["targets"] if t["name"] == "offsets_written_on_failure")["met"]
+
+
+def test_the_report_has_markdown_and_three_plots(tmp_path: Path) -> None:
+    records, rows, truth, faults = _witnesses(tmp_path)
+    cycles = join_cycles(records, rows, truth, faults)
+    summary = summarize(cycles, truth, rows, faults)
+    files = write_report(tmp_path / "report", cycles, summary, "monoguide simulate --faults")
+    text = files[0].read_text()
+    for name in ("grasp-error.png", "time-split.png", "offsets.png"):
+        assert f"![{name}]({name})" in text
+        picture = np.asarray(Image.open(tmp_path / "report" / name).convert("L"))
+        assert picture.shape == (420, 900) and (picture < 128).sum() > 500  # drawn, not blank
+    assert "| 3 | camera timeout | DEVICE_TIMEOUT | DEVICE_TIMEOUT | yes | yes |" in text
+    assert f"{summary['grasp_rms_mm']:.4f} mm" in text
+
+
+def test_every_fault_of_the_plan_is_known_to_the_simulated_devices() -> None:
+    from monoguide.drivers.sim.camera import FAILURES
+    from monoguide.drivers.sim.plc import FAULTS
+    from monoguide.drivers.sim.robot_motion import FAULT_MODES
+
+    known = {"camera": FAILURES, "plc": FAULTS, "robot": FAULT_MODES}
+    plan = fault_plan()
+    assert {(d, n) for d, n, _ in plan} == {(d, n) for d, names in known.items() for n in names if n != "none"}
+
+
+def test_a_fault_name_outside_the_plan_is_a_config_error_and_a_process_is_sampled_from_proc() -> None:
+    with pytest.raises(ConfigError, match="robot wobble"):
+        fault_plan(("robot wobble",))
+    assert [f[:2] for f in fault_plan(("plc no-ack", "camera glare"))] == [("plc", "no-ack"), ("camera", "glare")]
+    sample = sample_process(os.getpid())
+    assert sample is not None and sample["rss_mb"] > 10 and sample["threads"] >= 1 and sample["fds"] >= 3
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    child.wait(timeout=30)
+    assert sample_process(child.pid) is None  # gone
+
+
+# --- end to end: the cell and the service as processes --------------------------------------------
+
+
+def _simulate(tmp_path: Path, *args: str) -> tuple[subprocess.CompletedProcess[str], Path]:
+    work = tmp_path / "work"
+    env = {**os.environ, "COLUMNS": "200"}
+    done = subprocess.run([sys.executable, "-m", "monoguide.daemon.cli", "simulate", "--work-dir", str(work), *args],
+                          capture_output=True, text=True, timeout=RUN_TIMEOUT_S, env=env, cwd=ROOT)
+    return done, work
+
+
+@pytest.mark.timeout(RUN_TIMEOUT_S + 30)
+def test_a_json_run_with_faults_reports_what_the_truth_log_and_the_journal_say(tmp_path: Path) -> None:
+    """One short run covers the three end-to-end checks (the suite's time is shared): the summary against the
+    truth log, two injected faults (one device, one PLC) with their codes and nothing written for them, and
+    standard output holding JSON lines only while the progress goes to standard error."""
+    done, work = _simulate(tmp_path, "--json", "--cycles", "5", "--fault", "camera timeout", "--fault",
+                           "plc trigger-dropped-early", "--host", "127.0.7.21", "--report", str(tmp_path / "report"))
+    assert done.returncode == 0, done.stderr
+    objects = [json.loads(line) for line in done.stdout.splitlines()]  # every stdout line is JSON
+    assert all(f"cycle {k}/5" in done.stderr for k in range(1, 6))  # the progress went to stderr
+    *cycles, summary = objects
+    assert summary["summary"] is True and summary["cycles"] == len(cycles) == 5
+    assert [c["fault"] for c in cycles] == [None, "camera timeout", None, "plc trigger-dropped-early", None]
+    assert [c["status"] for c in cycles] == ["ok", "error", "ok", "error", "ok"]
+    assert (cycles[1]["error_code"], cycles[3]["error_code"]) == ("DEVICE_TIMEOUT", "PLC_TRIGGER_DROPPED")
+    assert all(f["reported"] and f["back_ready"] for f in summary["faults"]) and len(summary["faults"]) == 2
+    assert summary["errors"] == {"DEVICE_TIMEOUT": 1, "PLC_TRIGGER_DROPPED": 1}
+    # the truth: the robot got offsets for the three good cycles only, and they are what the line read
+    truth = read_truth_log(work / "truth.jsonl")
+    grasped = [t for t in truth if t["offset_written"] is not None]
+    assert len(grasped) == 3 == summary["grasped"] == summary["ok"]
+    good = [c for c in cycles if c["status"] == "ok"]
+    for cycle, part in zip(good, grasped, strict=True):
+        np.testing.assert_allclose(cycle["offset_written"], part["offset_written"], atol=1e-3)
+        assert cycle["grasp_error_mm"] == part["grasp_error_mm"]
+    mm = np.array([t["grasp_error_mm"] for t in grasped])
+    deg = np.array([t["grasp_error_deg"] for t in grasped])
+    assert math.isclose(summary["grasp_rms_mm"], float(np.sqrt(np.mean(mm**2))), rel_tol=1e-9)
+    assert math.isclose(summary["grasp_rms_deg"], float(np.sqrt(np.mean(deg**2))), rel_tol=1e-9)
+    assert summary["grasp_max_mm"] == mm.max() and summary["grasp_rms_mm"] <= 0.5  # the paper's requirement
+    assert summary["offsets_written_on_failure"] == 0
+    with Journal(work / "state") as journal:
+        rows = list(reversed(journal.last_cycles(10)))
+    assert [r.status for r in rows] == ["ok", "error", "ok", "error", "ok"]
+    cycle_s = np.median([r.timings_s["cycle"] for r in rows if r.status == "ok"])
+    assert math.isclose(summary["cycle_ms_median"], 1000 * cycle_s, abs_tol=1e-3)
+    assert 50.0 < summary["rss_mb"] < 4000.0
+    assert (tmp_path / "report" / "report.md").exists()

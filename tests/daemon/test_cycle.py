@@ -1,0 +1,197 @@
+"""The blocking cycle (daemon/cycle.py) end to end: a real ``monoguide sim-cell`` (its simulated UR controller in
+its own process, with the part supply and the truth log), the robot adapter over RTDE, the simulated camera in
+this process following that robot. Offsets are judged against the truth log the controller writes."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from monoguide.daemon.assembly import build_camera, build_robot
+from monoguide.daemon.config import CellConfig, ChecksConfig, load_cell_config
+from monoguide.daemon.cycle import CapturePoseMismatch, CycleAborted, CycleRunner
+from monoguide.drivers.camera import Camera
+from monoguide.drivers.errors import PlcUnknownJob
+from monoguide.drivers.robot import Robot
+from monoguide.drivers.sim.robot_motion import read_truth
+from monoguide.solver.errors import FeatureNotFound, OffsetOutOfEnvelope
+
+SIM_CELL = Path(__file__).parents[2] / "config" / "sim-cell.toml"
+START_S = 40.0
+
+
+@dataclasses.dataclass
+class Cell:
+    config: CellConfig
+    state: Path
+    truth_log: Path
+    camera: Camera
+    robot: Robot
+    process: subprocess.Popen[str]
+
+    def parts(self) -> list[dict]:
+        """The truth log, after sim-cell has stopped (a part's line is written when it leaves the cell)."""
+        _stop(self.process)
+        return [json.loads(line) for line in self.truth_log.read_text().splitlines()]
+
+
+def _config(tmp_path: Path, robot_host: str) -> Path:
+    """config/sim-cell.toml with this test's own addresses and state file, quick moves and a sharp lens (the
+    defocus makes each rendering ~5 times slower; the hole finder's blur tolerance is not under test here)."""
+    text = SIM_CELL.read_text()
+    plc_host = robot_host.rsplit(".", 1)[0] + "." + str(int(robot_host.rsplit(".", 1)[1]) + 1)
+    for old, new in (('host = "127.0.0.1"  # where', f'host = "{robot_host}"  # where'),
+                     ('host = "127.0.0.1"  # the simulated PLC', f'host = "{plc_host}"  # the simulated PLC'),
+                     ("sim_move_time_s = 0.5", "sim_move_time_s = 0.05"),
+                     ("aperture_mm = 1.4867", "aperture_mm = 0.0"),
+                     ("[sim]\n", f'[sim]\nstate_file = "{tmp_path / "state.json"}"\n')):
+        assert text.count(old) == 1, old
+        text = text.replace(old, new)
+    path = tmp_path / "cell.toml"
+    path.write_text(text)
+    return path
+
+
+def _stop(process: subprocess.Popen[str]) -> None:
+    if process.poll() is None:
+        process.send_signal(signal.SIGTERM)
+        try:
+            process.wait(10)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait(5)
+    if process.stdout is not None:
+        process.stdout.close()
+
+
+def _start(tmp_path: Path, robot_host: str) -> Iterator[Cell]:
+    config_path, truth_log = _config(tmp_path, robot_host), tmp_path / "truth.jsonl"
+    process = subprocess.Popen([sys.executable, "-m", "monoguide.daemon.cli", "sim-cell", "--config", str(config_path),
+                                "--no-plc", "--truth-log", str(truth_log)], stdout=subprocess.PIPE,
+                               stderr=subprocess.DEVNULL, text=True)
+    assert process.stdout is not None
+    watchdog = threading.Timer(START_S, process.kill)
+    watchdog.start()
+    try:
+        lines: list[str] = []
+        while not lines or not lines[-1].startswith("state file"):
+            line = process.stdout.readline()
+            if not line:
+                _stop(process)
+                pytest.fail(f"sim-cell did not start: {lines}")
+            lines.append(line.strip())
+    finally:
+        watchdog.cancel()
+    config = load_cell_config(config_path)
+    camera, robot = build_camera(config), build_robot(config)
+    camera.open()
+    robot.open()
+    try:
+        yield Cell(config, tmp_path / "state.json", truth_log, camera, robot, process)
+    finally:
+        robot.close()
+        camera.close()
+        _stop(process)
+
+
+@pytest.fixture
+def cell(tmp_path: Path) -> Iterator[Cell]:
+    yield from _start(tmp_path, "127.0.4.1")
+
+
+@pytest.fixture
+def failing_cell(tmp_path: Path) -> Iterator[Cell]:
+    yield from _start(tmp_path, "127.0.4.3")
+
+
+def _never() -> threading.Event:
+    return threading.Event()
+
+
+def test_good_cycles_write_offsets_that_grasp_the_true_part(cell: Cell, tmp_path: Path) -> None:
+    runner = CycleRunner(cell.config, cell.camera, cell.robot, images_dir=tmp_path / "images")
+    solutions = []
+    for _ in range(2):
+        measurement = runner.measure(1, _never(), lambda: CycleAborted("stop"))
+        solution = runner.solve(measurement)
+        runner.check(measurement, solution)
+        assert runner.write(solution) > 0
+        solutions.append(solution)
+        assert set(measurement.timings_s) == {"robot_motion", "exposure", "hole_finding", "solve", "checks",
+                                              "offset_write", "overhead"}
+        assert all(v >= 0 for v in measurement.timings_s.values())
+    # the robot's actual pose at each capture is the controller's stop (its truth file)
+    truth = read_truth(Path(json.loads(cell.state.read_text())["robot"]["truth"]))
+    for capture in measurement.captures:
+        np.testing.assert_allclose(capture.T_b_f, np.array(truth["stops"][str(capture.pose_index + 1)]), atol=1e-3)
+        assert capture.image_path is not None and Path(capture.image_path).is_file()
+    assert measurement.record["format"] == "monoguide.measurement/1" and len(measurement.record["observations"]) == 4
+
+    parts = cell.parts()
+    assert [p["part"] for p in parts] == [1, 2]
+    for part, solution in zip(parts, solutions, strict=True):
+        assert part["grasp_error_mm"] < 0.1 and part["grasp_error_deg"] < 0.01, part
+        ideal, written = np.array(part["offset_ideal"]), np.array(part["offset_written"])
+        np.testing.assert_allclose(written, solution.offset, atol=1e-3)  # what the PLC is shown is what was written
+        assert np.linalg.norm(written[:3] - ideal[:3]) < 3.0 and np.max(np.abs(written[3:] - ideal[3:])) < 0.05
+        rms, sigma_mm, sigma_deg = solution.quality
+        assert 0 < rms < 1.0 and 0 < sigma_mm < 0.5 and 0 < sigma_deg < 0.1
+
+
+class _AbortAtCheck(threading.Event):
+    """An abort flag that the service sets while the cycle runs: set from the ``n``-th look on."""
+
+    def __init__(self, n: int) -> None:
+        super().__init__()
+        self.looks, self.n = 0, n
+
+    def is_set(self) -> bool:
+        self.looks += 1
+        return self.looks >= self.n or super().is_set()
+
+
+def test_failing_cycles_write_nothing(failing_cell: Cell) -> None:
+    cell, cfg = failing_cell, failing_cell.config
+    runner = CycleRunner(cfg, cell.camera, cell.robot)
+    with pytest.raises(PlcUnknownJob):
+        runner.measure(2, _never(), lambda: CycleAborted("stop"))
+
+    # part 1: aborted after S1 (the 3rd look: before requesting S2)
+    with pytest.raises(CycleAborted, match="SIGTERM"):
+        runner.measure(1, _AbortAtCheck(3), lambda: CycleAborted("SIGTERM"))
+
+    # part 2: the offset lies outside a tiny envelope
+    tiny = CycleRunner(dataclasses.replace(cfg, checks=ChecksConfig(envelope_mm=0.5)), cell.camera, cell.robot)
+    measurement = tiny.measure(1, _never(), lambda: CycleAborted("stop"))
+    solution = tiny.solve(measurement)
+    with pytest.raises(OffsetOutOfEnvelope):
+        tiny.check(measurement, solution)
+
+    # the same measurement against a robot tolerance tighter than its repeatability: the capture poses fail
+    assert cfg.robot is not None
+    strict_cfg = dataclasses.replace(cfg, robot=dataclasses.replace(cfg.robot, pose_tolerance_mm=1e-4))
+    with pytest.raises(CapturePoseMismatch, match="S1: the robot stood"):
+        CycleRunner(strict_cfg, cell.camera, cell.robot).check(measurement, solution)
+
+    # part 3: the camera delivers black frames (a `camera black 8` command to sim-cell, through its state file)
+    state = json.loads(cell.state.read_text())
+    state["camera_fault"] = {"failure": "black", "count": 8, "serial": 1}
+    tmp = cell.state.with_name("state.json.tmp")
+    tmp.write_text(json.dumps(state))
+    os.replace(tmp, cell.state)
+    with pytest.raises(FeatureNotFound):
+        runner.measure(1, _never(), lambda: CycleAborted("stop"))
+
+    parts = cell.parts()
+    assert [p["part"] for p in parts] == [1, 2, 3]
+    assert all(p["offset_written"] is None and p["grasp_error_mm"] is None for p in parts)
