@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import select
 import signal
 import subprocess
 import sys
@@ -16,6 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from simcell_helpers import start_sim_cell, stop
 from typer.testing import CliRunner
 
 from monoguide.daemon.assembly import build_sim_cell
@@ -33,24 +33,13 @@ def sim_cell(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], Path, str]
     """A running ``monoguide sim-cell`` with its state file in ``tmp_path``; stopped (SIGTERM) at teardown."""
     state = tmp_path / "state.json"
     config = _own_addresses(tmp_path)
-    process = subprocess.Popen([sys.executable, "-m", "monoguide.daemon.cli", "sim-cell", "--config", str(config),
-                                "--state-file", str(state)], stdout=subprocess.PIPE, text=True)
-    assert process.stdout is not None
-    ready, _, _ = select.select([process.stdout], [], [], 20.0)
-    first = process.stdout.readline() if ready else ""
+    process, lines = start_sim_cell(config, "--state-file", str(state), until="tracker listening")
     try:
-        match = re.match(r"tracker listening on (\S+)", first)
-        assert match, f"sim-cell said {first!r}"
+        match = re.match(r"tracker listening on (\S+)", lines[-1])
+        assert match, f"sim-cell said {lines!r}"
         yield process, state, match.group(1)
     finally:
-        if process.poll() is None:
-            process.send_signal(signal.SIGTERM)
-            try:
-                process.wait(10)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait(5)
-        process.stdout.close()
+        stop(process)
 
 
 def _own_addresses(tmp_path: Path) -> Path:

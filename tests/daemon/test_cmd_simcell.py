@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from simcell_helpers import SIM_CELL, START_S, cell_config, start_sim_cell, stop
 
 from monoguide.daemon.assembly import build_robot, build_sim_cell
 from monoguide.daemon.cmd_simcell import FAULT_COMMANDS
@@ -30,9 +31,6 @@ from monoguide.drivers.modbus_plc import ModbusPlc
 from monoguide.drivers.plc_registers import CycleResult, PlcInputs, PlcOutputs, Status
 from monoguide.drivers.sim.robot_motion import follow_truth
 from monoguide.solver.frames import T_to_kuka_frame, invert, matrix_to_rotvec, transform_points
-
-SIM_CELL = Path(__file__).parents[2] / "config" / "sim-cell.toml"
-START_S = 40.0  # two cells built at once on a shared machine
 
 
 def _sim_cell(state: Path) -> subprocess.Popen[str]:
@@ -45,20 +43,6 @@ def _first_line(process: subprocess.Popen[str], timeout_s: float = START_S) -> s
     assert process.stdout is not None
     ready, _, _ = select.select([process.stdout], [], [], timeout_s)
     return process.stdout.readline() if ready else ""
-
-
-def _stop(process: subprocess.Popen[str]) -> int:
-    if process.poll() is None:
-        process.send_signal(signal.SIGTERM)
-        try:
-            process.wait(10)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait(5)
-    for stream in (process.stdout, process.stderr):
-        if stream is not None:
-            stream.close()
-    return process.returncode
 
 
 def test_two_sim_cells_started_together_exactly_one_runs(tmp_path: Path) -> None:
@@ -81,11 +65,11 @@ def test_two_sim_cells_started_together_exactly_one_runs(tmp_path: Path) -> None
         time.sleep(0.3)
         assert winner.poll() is None
         assert json.loads(state.read_text())["pid"] == winner.pid  # survived the loser's exit, and is the winner's
-        assert _stop(winner) == 0
+        assert stop(winner) == 0
         assert not state.exists() and not state.with_name("state.json.lock").exists()
     finally:
         for p in both:
-            _stop(p)
+            stop(p)
 
 
 def test_a_state_file_left_by_a_killed_sim_cell_is_taken_over(tmp_path: Path) -> None:
@@ -103,13 +87,13 @@ def test_a_state_file_left_by_a_killed_sim_cell_is_taken_over(tmp_path: Path) ->
             time.sleep(0.05)
         assert not _alive(running["plc"]["pid"]), "the simulated PLC outlived its killed sim-cell"
     finally:
-        _stop(first)
+        stop(first)
     second = _sim_cell(state)
     try:
         assert _first_line(second).startswith("tracker listening on")
         assert json.loads(state.read_text())["pid"] == second.pid
     finally:
-        assert _stop(second) == 0
+        assert stop(second) == 0
 
 
 @pytest.mark.parametrize("which", ["state.json", "state.json.lock"])
@@ -122,7 +106,7 @@ def test_a_directory_where_the_state_file_goes_is_a_clear_config_error(tmp_path:
         assert process.stderr is not None
         message = process.stderr.read()
     finally:
-        _stop(process)
+        stop(process)
     assert "CONFIG_INVALID" in message and "is a directory" in message and str(tmp_path / which) in message
     assert "Traceback" not in message
     assert (tmp_path / which).is_dir() and os.listdir(tmp_path / which) == []  # left as it was
@@ -131,43 +115,14 @@ def test_a_directory_where_the_state_file_goes_is_a_clear_config_error(tmp_path:
 # --- the simulated PLC and the part supply (issue 10) ------------------------------------------
 
 
-def _cell_config(tmp_path: Path, robot_host: str, plc_host: str) -> Path:
-    """config/sim-cell.toml with this test's own robot and PLC addresses and quick robot moves."""
-    text = SIM_CELL.read_text()
-    for old, new in (('host = "127.0.0.1"  # where', f'host = "{robot_host}"  # where'),
-                     ('host = "127.0.0.1"  # the simulated PLC', f'host = "{plc_host}"  # the simulated PLC'),
-                     ("sim_move_time_s = 0.5", "sim_move_time_s = 0.05")):
-        assert text.count(old) == 1, old
-        text = text.replace(old, new)
-    path = tmp_path / "cell.toml"
-    path.write_text(text)
-    return path
-
-
 def _run_sim_cell(config: Path, state: Path, *options: str) -> tuple[subprocess.Popen[str], list[str]]:
-    """Start sim-cell; its stdout lines up to the state file's (it runs then)."""
-    process = subprocess.Popen([sys.executable, "-m", "monoguide.daemon.cli", "sim-cell", "--config", str(config),
-                                "--state-file", str(state), *options], stdin=subprocess.DEVNULL,
-                               stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-    assert process.stdout is not None
-    lines: list[str] = []
-    watchdog = threading.Timer(START_S, process.kill)  # readline, not select: lines wait in the text buffer
-    watchdog.start()
-    try:
-        while not lines or not lines[-1].startswith("state file"):
-            line = process.stdout.readline()
-            if not line:
-                _stop(process)
-                pytest.fail(f"sim-cell did not start: {lines}")
-            lines.append(line.strip())
-    finally:
-        watchdog.cancel()
-    return process, lines
+    """Start sim-cell with its state file at ``state``; its stdout lines up to the state file's (it runs then)."""
+    return start_sim_cell(config, "--state-file", str(state), *options)
 
 
 def _stop_cell(process: subprocess.Popen[str], pids: list[int]) -> None:
     """Stop sim-cell and prove that none of its device processes outlived it (SIGKILL any that did)."""
-    assert _stop(process) == 0
+    assert stop(process) == 0
     deadline = time.monotonic() + 5.0
     alive = pids
     while alive and time.monotonic() < deadline:
@@ -200,7 +155,7 @@ def _within_envelope(T_cf_w: np.ndarray, cfg: CellConfig) -> bool:
 
 
 def test_sim_cell_runs_the_plc_and_a_part_supply_with_a_truth_log(tmp_path: Path) -> None:
-    config, state, truth_log = _cell_config(tmp_path, "127.0.3.1", "127.0.3.2"), tmp_path / "s.json", \
+    config, state, truth_log = cell_config(tmp_path, "127.0.3.1", "127.0.3.2"), tmp_path / "s.json", \
         tmp_path / "truth.jsonl"
     cfg = load_cell_config(config)
     process, lines = _run_sim_cell(config, state, "--truth-log", str(truth_log))
@@ -264,7 +219,7 @@ def test_sim_cell_runs_the_plc_and_a_part_supply_with_a_truth_log(tmp_path: Path
 
 
 def test_no_plc_leaves_the_plc_address_to_another_server(tmp_path: Path) -> None:
-    config, state = _cell_config(tmp_path, "127.0.3.3", "127.0.3.4"), tmp_path / "s.json"
+    config, state = cell_config(tmp_path, "127.0.3.3", "127.0.3.4"), tmp_path / "s.json"
     with socket.socket() as other_plc:  # a PLC programmer's own server, there first
         other_plc.bind(("127.0.3.4", 5020))
         other_plc.listen()
@@ -291,7 +246,7 @@ def test_truth_log_needs_a_simulated_robot(tmp_path: Path) -> None:
         assert process.stderr is not None
         message = process.stderr.read()
     finally:
-        _stop(process)
+        stop(process)
     assert "CONFIG_INVALID" in message and "--truth-log" in message and "sim-ur" in message
     assert not (tmp_path / "t.jsonl").exists() and not (tmp_path / "s.json").exists()
 
@@ -379,7 +334,7 @@ def test_fault_names_are_the_simulators_own() -> None:
 
 
 def test_fault_commands_reach_each_device_and_parts_stop_after_n(tmp_path: Path) -> None:
-    config, state = _cell_config(tmp_path, "127.0.6.1", "127.0.6.2"), tmp_path / "s.json"
+    config, state = cell_config(tmp_path, "127.0.6.1", "127.0.6.2"), tmp_path / "s.json"
     cfg = load_cell_config(config)
     process = subprocess.Popen([sys.executable, "-m", "monoguide.daemon.cli", "sim-cell", "--config", str(config),
                                 "--state-file", str(state), "--parts", "2"], stdin=subprocess.PIPE,

@@ -7,15 +7,14 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import signal
 import subprocess
-import sys
 import threading
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
+from simcell_helpers import cell_config, start_sim_cell, stop
 
 from monoguide.daemon.assembly import build_camera, build_robot
 from monoguide.daemon.config import CellConfig, ChecksConfig, load_cell_config
@@ -25,9 +24,6 @@ from monoguide.drivers.errors import PlcUnknownJob
 from monoguide.drivers.robot import Robot
 from monoguide.drivers.sim.robot_motion import read_truth
 from monoguide.solver.errors import FeatureNotFound, OffsetOutOfEnvelope
-
-SIM_CELL = Path(__file__).parents[2] / "config" / "sim-cell.toml"
-START_S = 40.0
 
 
 @dataclasses.dataclass
@@ -41,57 +37,14 @@ class Cell:
 
     def parts(self) -> list[dict]:
         """The truth log, after sim-cell has stopped (a part's line is written when it leaves the cell)."""
-        _stop(self.process)
+        stop(self.process)
         return [json.loads(line) for line in self.truth_log.read_text().splitlines()]
 
 
-def _config(tmp_path: Path, robot_host: str) -> Path:
-    """config/sim-cell.toml with this test's own addresses and state file, quick moves and a sharp lens (the
-    defocus makes each rendering ~5 times slower; the hole finder's blur tolerance is not under test here)."""
-    text = SIM_CELL.read_text()
-    plc_host = robot_host.rsplit(".", 1)[0] + "." + str(int(robot_host.rsplit(".", 1)[1]) + 1)
-    for old, new in (('host = "127.0.0.1"  # where', f'host = "{robot_host}"  # where'),
-                     ('host = "127.0.0.1"  # the simulated PLC', f'host = "{plc_host}"  # the simulated PLC'),
-                     ("sim_move_time_s = 0.5", "sim_move_time_s = 0.05"),
-                     ("aperture_mm = 1.4867", "aperture_mm = 0.0"),
-                     ("[sim]\n", f'[sim]\nstate_file = "{tmp_path / "state.json"}"\n')):
-        assert text.count(old) == 1, old
-        text = text.replace(old, new)
-    path = tmp_path / "cell.toml"
-    path.write_text(text)
-    return path
-
-
-def _stop(process: subprocess.Popen[str]) -> None:
-    if process.poll() is None:
-        process.send_signal(signal.SIGTERM)
-        try:
-            process.wait(10)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait(5)
-    if process.stdout is not None:
-        process.stdout.close()
-
-
 def _start(tmp_path: Path, robot_host: str) -> Iterator[Cell]:
-    config_path, truth_log = _config(tmp_path, robot_host), tmp_path / "truth.jsonl"
-    process = subprocess.Popen([sys.executable, "-m", "monoguide.daemon.cli", "sim-cell", "--config", str(config_path),
-                                "--no-plc", "--truth-log", str(truth_log)], stdout=subprocess.PIPE,
-                               stderr=subprocess.DEVNULL, text=True)
-    assert process.stdout is not None
-    watchdog = threading.Timer(START_S, process.kill)
-    watchdog.start()
-    try:
-        lines: list[str] = []
-        while not lines or not lines[-1].startswith("state file"):
-            line = process.stdout.readline()
-            if not line:
-                _stop(process)
-                pytest.fail(f"sim-cell did not start: {lines}")
-            lines.append(line.strip())
-    finally:
-        watchdog.cancel()
+    config_path = cell_config(tmp_path, robot_host, sharp=True, state_file=tmp_path / "state.json")
+    truth_log = tmp_path / "truth.jsonl"
+    process, _ = start_sim_cell(config_path, "--no-plc", "--truth-log", str(truth_log))
     config = load_cell_config(config_path)
     camera, robot = build_camera(config), build_robot(config)
     camera.open()
@@ -101,7 +54,7 @@ def _start(tmp_path: Path, robot_host: str) -> Iterator[Cell]:
     finally:
         robot.close()
         camera.close()
-        _stop(process)
+        stop(process)
 
 
 @pytest.fixture

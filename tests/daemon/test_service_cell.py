@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from simcell_helpers import SIM_CELL, cell_config, start_sim_cell, stop
 from test_service_handshake import Line, _record_status_writes, _sync
 
 from monoguide.daemon.journal import Journal
@@ -26,7 +27,6 @@ from monoguide.drivers.errors import PlcTriggerDropped
 from monoguide.drivers.plc_registers import Control, Status
 from monoguide.drivers.sim.plc import PlcServer
 
-SIM_CELL = Path(__file__).parents[2] / "config" / "sim-cell.toml"
 ROBOT_HOST, PLC_HOST, PLC_PORT = "127.0.5.20", "127.0.5.21", 5020
 START_S = 60.0  # sim-cell and the service's devices on a shared machine
 CYCLE_S = 60.0
@@ -37,35 +37,15 @@ def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Path]]:
     """One sim-cell (robot with part supply, tracker; no PLC) for the module; its config and truth log."""
     tmp = tmp_path_factory.mktemp("service-cell")
     state, truth = tmp / "sim-state.json", tmp / "truth.jsonl"
-    text = SIM_CELL.read_text()
-    for old, new in (('host = "127.0.0.1"  # where', f'host = "{ROBOT_HOST}"  # where'),
-                     ('host = "127.0.0.1"  # the simulated PLC', f'host = "{PLC_HOST}"  # the simulated PLC'),
-                     ("sim_move_time_s = 0.5", "sim_move_time_s = 0.05"),
-                     ("aperture_mm = 1.4867", "aperture_mm = 0.0"),  # no defocus blur: 0.2 s a frame, not 3 s
-                     ("heartbeat_timeout_s = 2.0", "heartbeat_timeout_s = 2.0\nack_timeout_s = 30.0"),
-                     ("[sim]\n", f"[sim]\nstate_file = \"{state}\"\n")):
-        assert text.count(old) == 1, old
-        text = text.replace(old, new)
-    config = tmp / "cell.toml"
-    config.write_text(text + "\n[service]\nimages_max_mb = 50.0\n")
-    process = subprocess.Popen([sys.executable, "-m", "monoguide.daemon.cli", "sim-cell", "--config", str(config),
-                                "--no-plc", "--truth-log", str(truth)], stdin=subprocess.PIPE,
-                               stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-    assert process.stdout is not None
+    config = cell_config(tmp, ROBOT_HOST, PLC_HOST, sharp=True, state_file=state,  # sharp: 0.2 s a frame, not 3 s
+                         more=[("heartbeat_timeout_s = 2.0", "heartbeat_timeout_s = 2.0\nack_timeout_s = 30.0")],
+                         extra="\n[service]\nimages_max_mb = 50.0\n")
+    process, _ = start_sim_cell(config, "--no-plc", "--truth-log", str(truth), stdin=subprocess.PIPE,
+                                timeout_s=START_S)
     try:
-        for line in process.stdout:
-            if line.startswith("state file"):
-                break
-        else:
-            pytest.fail("sim-cell did not start")
         yield {"config": config, "truth": truth, "tmp": tmp}
     finally:
-        process.send_signal(signal.SIGTERM)
-        try:
-            process.wait(15)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait(5)
+        stop(process, 15.0)
 
 
 async def _run(config: Path, state_dir: Path, *options: str) -> asyncio.subprocess.Process:
