@@ -13,6 +13,12 @@ pose plus the RTDE handshake.
 
     .venv/bin/python benchmarks/bench_cycle.py                      # 10 cycles of config/sim-cell.toml
     .venv/bin/python benchmarks/bench_cycle.py --cycles 3 --move-time 0.1 --sharp
+    .venv/bin/python benchmarks/bench_cycle.py --cycles 12 --sharp --images --compare   # before/after
+
+``--compare`` alternates, cycle by cycle in the same process, the code as it was before the speed-ups of
+docs/cycle.md ("before": the whole ROI searched at full resolution on a full-frame grey copy, the offset's
+acknowledgement polled every 10 ms, with ``--images`` the last PNG written before the solve) and as it is
+("after"), and prints both medians and their ratio: the two see the same load.
 """
 
 from __future__ import annotations
@@ -30,9 +36,12 @@ from pathlib import Path
 
 import numpy as np
 
+from monoguide.daemon import cycle as cycle_module
 from monoguide.daemon.assembly import build_camera, build_robot
 from monoguide.daemon.config import load_cell_config
 from monoguide.daemon.cycle import CycleAborted, CycleRunner
+from monoguide.drivers import robot as robot_module
+from monoguide.solver import holes
 
 STAGES = ("robot_motion", "exposure", "hole_finding", "solve", "checks", "offset_write", "overhead", "cycle")
 HOST = "127.0.4.200"
@@ -45,33 +54,38 @@ def main() -> int:
     parser.add_argument("--move-time", type=float, default=None, help="[robot] sim_move_time_s (s per pose)")
     parser.add_argument("--sharp", action="store_true", help="no simulated defocus (faster rendering)")
     parser.add_argument("--images", action="store_true", help="also save each frame as PNG (as the service does)")
+    parser.add_argument("--compare", action="store_true", help="alternate the code before / after the speed-ups")
+    parser.add_argument("--host", default=HOST, help="loopback address of the simulated robot")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench-cycle-") as folder:
         tmp = Path(folder)
-        config_path = _config(args.config, tmp, args.move_time, args.sharp)
+        config_path = _config(args.config, tmp, args.move_time, args.sharp, args.host)
         truth_log = tmp / "truth.jsonl"
         process = subprocess.Popen([sys.executable, "-m", "monoguide.daemon.cli", "sim-cell", "--config",
                                     str(config_path), "--no-plc", "--truth-log", str(truth_log)],
                                    stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
         try:
             _wait_started(process)
-            timings = _run(config_path, args.cycles, tmp / "images" if args.images else None)
+            timings = _run(config_path, args.cycles, tmp / "images" if args.images else None, args.compare)
         finally:
             process.send_signal(signal.SIGTERM)
             process.wait(15)
             assert process.stdout is not None
             process.stdout.close()
         parts = [json.loads(line) for line in truth_log.read_text().splitlines()]
-    _print(timings, parts)
+    if args.compare:
+        _print_compare(timings[0::2], timings[1::2])
+    else:
+        _print(timings, parts)
     return 0
 
 
-def _config(path: Path, tmp: Path, move_time: float | None, sharp: bool) -> Path:
+def _config(path: Path, tmp: Path, move_time: float | None, sharp: bool, host: str = HOST) -> Path:
     lines = []
     for line in path.read_text().splitlines():
         key = line.split("=")[0].strip()
         if key == "host" and ("# where" in line or "# the simulated PLC" in line):
-            line = f'host = "{HOST}"' if "# where" in line else 'host = "127.0.4.201"'
+            line = f'host = "{host}"' if "# where" in line else f'host = "{host.rsplit(".", 1)[0]}.201"'
         elif key == "sim_move_time_s" and move_time is not None:
             line = f"sim_move_time_s = {move_time}"
         elif key == "aperture_mm" and sharp:
@@ -101,7 +115,7 @@ def _wait_started(process: subprocess.Popen[str]) -> None:
         watchdog.cancel()
 
 
-def _run(config_path: Path, cycles: int, images: Path | None) -> list[dict[str, float]]:
+def _run(config_path: Path, cycles: int, images: Path | None, compare: bool = False) -> list[dict[str, float]]:
     config = load_cell_config(config_path)
     camera, robot = build_camera(config), build_robot(config)
     camera.open()
@@ -110,8 +124,12 @@ def _run(config_path: Path, cycles: int, images: Path | None) -> list[dict[str, 
     try:
         runner = CycleRunner(config, camera, robot, images)
         for n in range(cycles):
+            before = compare and n % 2 == 0
+            _set_before(before)
             start = time.monotonic()
             measurement = runner.measure(1, threading.Event(), lambda: CycleAborted("benchmark stopped"))
+            if before:
+                cycle_module.wait_images(measurement.images)  # the PNGs were written by the finder, in line
             solution = runner.solve(measurement)
             runner.check(measurement, solution)
             runner.write(solution)
@@ -120,9 +138,41 @@ def _run(config_path: Path, cycles: int, images: Path | None) -> list[dict[str, 
             print(f"cycle {n + 1}: {measurement.timings_s['cycle']:.2f} s, rms {solution.quality[0]:.3f} px",
                   file=sys.stderr)
     finally:
+        _set_before(False)
         robot.close()
         camera.close()
     return out
+
+
+_AFTER = (holes._coarse_locate, holes._grey_window, robot_module.ACK_POLL_S)
+
+
+def _set_before(before: bool) -> None:
+    """Switch the speed-ups of docs/cycle.md off (``before``) or on."""
+    if before:
+        holes._coarse_locate = lambda *args, **kwargs: None  # type: ignore[assignment]
+        holes._grey_window = lambda image, roi, r, bit_depth: holes.as_grey(image, bit_depth)  # type: ignore
+        robot_module.ACK_POLL_S = robot_module.POLL_S
+    else:
+        holes._coarse_locate, holes._grey_window, robot_module.ACK_POLL_S = _AFTER
+
+
+def _print_compare(before: list[dict[str, float]], after: list[dict[str, float]]) -> None:
+    print(f"{'stage (median ms)':<18} {'before':>9} {'after':>9} {'after/before':>13}")
+    for stage in (*STAGES, "compute"):
+        a = [_stage(t, stage) * 1e3 for t in before if stage in t or stage == "compute"]
+        b = [_stage(t, stage) * 1e3 for t in after if stage in t or stage == "compute"]
+        if a and b:
+            ma, mb = statistics.median(a), statistics.median(b)
+            print(f"{stage:<18} {ma:>9.1f} {mb:>9.1f} {mb / ma if ma else float('nan'):>13.2f}")
+    print(f"{len(before)} cycles before, {len(after)} after, alternating; compute = hole_finding + solve + checks "
+          f"+ offset_write")
+
+
+def _stage(t: dict[str, float], stage: str) -> float:
+    if stage == "compute":
+        return sum(t.get(k, 0.0) for k in ("hole_finding", "solve", "checks", "offset_write"))
+    return t[stage]
 
 
 def _print(timings: list[dict[str, float]], parts: list[dict]) -> None:

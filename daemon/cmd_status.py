@@ -82,6 +82,17 @@ def _as_json(report: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def _last_result(result: dict[str, Any]) -> str:
+    """``cycle 12 ok, job 1, part tag 7, finished 14:02:31`` (the error code only when there is one)."""
+    words = [f"cycle {result.get('cycle')} {result.get('status')}"]
+    if result.get("error_code"):
+        words[0] += f" {result['error_code']}"
+    words += [f"{key.replace('_', ' ')} {result[key]}" for key in ("job", "part_tag") if result.get(key) is not None]
+    if isinstance(result.get("finished_at"), int | float):
+        words.append(f"finished {_clock(result['finished_at'])}")
+    return ", ".join(words)
+
+
 def _print_report(report: dict[str, Any]) -> None:
     out = stdout_console()
     service: ServiceStatus | None = report["service"]
@@ -96,7 +107,7 @@ def _print_report(report: dict[str, Any]) -> None:
             trouble = "" if not error else f", last error {error.get('code')}: {error.get('message')}"
             lines.append(f"  {name}: {'connected' if device.connected else 'NOT connected'}{trouble}")
         if service.last_result:
-            lines.append("  last result: " + ", ".join(f"{key} {value}" for key, value in service.last_result.items()))
+            lines.append("  last result: " + _last_result(service.last_result))
     if report["counter"] is not None:
         lines.append(f"journal: {report['counter']} cycles in {report['state_dir'] / JOURNAL_FILE}")
     elif report["journal_error"] is None:

@@ -62,6 +62,30 @@ _CONFIGURED: weakref.WeakKeyDictionary[Any, CameraSettings] = weakref.WeakKeyDic
 _PREPARED: dict[int, tuple[Any, ...]] = {}  # the last config's record template, search plan, taught poses
 ROI_MARGIN_PX = 24.0  # beyond the envelope's spread and the hole's own size
 PNG_COMPRESSION = 1  # fast: a 5 MP frame in ~0.1 s
+# Long-lived workers (not a new thread per cycle): one finds holes while the robot moves, one writes the PNGs
+# off the cycle's path (the last view's image would otherwise sit between the last frame and the offset write).
+_FINDER = ThreadPoolExecutor(1, thread_name_prefix="monoguide-holes")
+_IMAGE_WRITER = ThreadPoolExecutor(1, thread_name_prefix="monoguide-images")
+_M_MMAP_THRESHOLD, _M_ARENA_MAX = -3, -8  # glibc mallopt(3) parameters
+MMAP_THRESHOLD_BYTES = 1 << 20
+MALLOC_ARENAS = 2
+
+
+def tune_malloc() -> bool:
+    """Keep the service's resident memory flat (docs/cycle.md, Memory): at most ``MALLOC_ARENAS`` glibc
+    arenas and a fixed mmap threshold of 1 MiB, so every frame-sized buffer (5 MB images, their grey copies)
+    is mmapped and returned to the system when freed. Without it glibc raises its mmap threshold after the
+    first large free and keeps later frames in per-thread arenas that fragment: the service grew from
+    ~250 to over 500 MB in 30 cycles. The same as ``MALLOC_ARENA_MAX=2 MALLOC_MMAP_THRESHOLD_=1048576`` in
+    the environment; call it once at start. False when the C library is not glibc (nothing changed)."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None)
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):
+        return False
+    return bool(mallopt(_M_ARENA_MAX, MALLOC_ARENAS)) & bool(mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES))
 
 
 class CycleAborted(CycleError):
@@ -100,6 +124,7 @@ class Measurement:
     record: dict  # the measurement record (docs/measurement-record.md), JSON-able
     timings_s: dict[str, float]
     last_frame_at: float = 0.0  # time.monotonic() when the last frame was in hand
+    images: list[Future[bool]] = field(default_factory=list)  # the PNGs being written (True: written)
 
 
 @dataclass
@@ -113,6 +138,7 @@ class Solution:
     timings_s: dict[str, float] = field(default_factory=dict)  # the measurement's own dict
     last_frame_at: float = 0.0
     T_s1_w: np.ndarray | None = None  # the solved pose, unrounded
+    images: list[Future[bool]] = field(default_factory=list)  # the measurement's
 
 
 @dataclass(frozen=True)
@@ -160,7 +186,7 @@ class CycleRunner:
         poses = self.config.measuring_poses
         futures: list[Future[tuple[Capture, float]]] = []
         last_frame_at = 0.0
-        pool = ThreadPoolExecutor(1, thread_name_prefix="monoguide-holes")
+        images: list[Future[bool]] = []
         try:
             for i in range(len(poses)):
                 _check_abort(abort, abort_error)
@@ -174,7 +200,10 @@ class CycleRunner:
                 last_frame_at = time.monotonic()
                 timings["robot_motion"] += t1 - t0
                 timings["exposure"] += last_frame_at - t1
-                futures.append(pool.submit(self._find, i, frame, np.array(status.T_b_f, dtype=float)))
+                path = self._image_path(poses[i].name)
+                if path is not None:
+                    images.append(_IMAGE_WRITER.submit(_save_png, path, frame.image, poses[i].name))
+                futures.append(_FINDER.submit(self._find, i, frame, np.array(status.T_b_f, dtype=float), path))
             captures = []
             for future in futures:
                 while True:  # every wait has a way out: the abort
@@ -187,9 +216,10 @@ class CycleRunner:
                 captures.append(capture)
                 timings["hole_finding"] += seconds
         finally:
-            pool.shutdown(wait=True, cancel_futures=True)
+            for future in futures:
+                future.cancel()  # those not started; a running one ends on its own (it only reads its frame)
         record = self._record(job, captures)
-        return Measurement(job, captures, record, timings, last_frame_at)
+        return Measurement(job, captures, record, timings, last_frame_at, images)
 
     def solve(self, measurement: Measurement) -> Solution:
         """Pose, covariance, one perspective-correction iteration; the measurement's record and captures are
@@ -215,6 +245,7 @@ class CycleRunner:
             timings_s=measurement.timings_s,
             last_frame_at=measurement.last_frame_at,
             T_s1_w=result.T_s1_w,
+            images=measurement.images,
         )
 
     def check(self, measurement: Measurement, solution: Solution) -> None:
@@ -246,6 +277,7 @@ class CycleRunner:
         solution.timings_s["offset_write"] = done - start
         if solution.last_frame_at:
             solution.timings_s["overhead"] = done - solution.last_frame_at
+        wait_images(solution.images)  # after the acknowledgment: the PNGs are not on the overhead path
         return sequence
 
     # --- measuring ----------------------------------------------------------------------------------
@@ -268,7 +300,7 @@ class CycleRunner:
                 del _CONFIGURED[self.camera]  # reopened, it needs its settings again
             raise
 
-    def _find(self, i: int, frame: Frame, T_b_f: np.ndarray) -> tuple[Capture, float]:
+    def _find(self, i: int, frame: Frame, T_b_f: np.ndarray, path: Path | None = None) -> tuple[Capture, float]:
         """The worker: the expected holes of view ``i`` in ``frame``; (capture, seconds spent finding)."""
         start = time.monotonic()
         pose, view = self.config.measuring_poses[i], self._views[i]
@@ -285,22 +317,12 @@ class CycleRunner:
                 raise type(exc)(f"{pose.name}, {self.config.part.point_names[j]}: {exc.message}") from exc
             found.append((float(hole.center[0]) + ox, float(hole.center[1]) + oy))
         seconds = time.monotonic() - start
-        path = self._save(pose.name, frame)
-        return Capture(i, T_b_f, path, found[0], tuple(found), tuple(found)), seconds
+        return Capture(i, T_b_f, None if path is None else str(path), found[0], tuple(found), tuple(found)), seconds
 
-    def _save(self, name: str, frame: Frame) -> str | None:
+    def _image_path(self, name: str) -> Path | None:
         if self.images_dir is None:
             return None
-        path = Path(self.images_dir) / f"{re.sub(r'[^A-Za-z0-9_.-]', '_', name)}.png"
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            if cv2.imwrite(str(path), frame.image, [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION]):
-                return str(path)
-        except (OSError, cv2.error) as exc:
-            log.warning("cannot save the image of %s at %s: %s", name, path, exc)
-            return None
-        log.warning("cannot save the image of %s at %s", name, path)
-        return None
+        return Path(self.images_dir) / f"{re.sub(r'[^A-Za-z0-9_.-]', '_', name)}.png"
 
     # --- the record ---------------------------------------------------------------------------------
 
@@ -449,6 +471,32 @@ class CycleRunner:
             rois.append((x0, y0, x1 - x0, y1 - y0))
             offsets.append(float(np.max(np.linalg.norm(pts - centre, axis=1))) + r_px + ROI_MARGIN_PX)
         return _ViewPlan(pose.points, tuple(expected), tuple(radii), tuple(rois), tuple(offsets))
+
+
+def _save_png(path: Path, image: np.ndarray, name: str) -> bool:
+    """The image writer's job: ``image`` as PNG at ``path``; False (and a warning) when it cannot."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if cv2.imwrite(str(path), image, [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION]):
+            return True
+    except (OSError, cv2.error) as exc:
+        log.warning("cannot save the image of %s at %s: %s", name, path, exc)
+        return False
+    log.warning("cannot save the image of %s at %s", name, path)
+    return False
+
+
+def wait_images(images: list[Future[bool]], timeout_s: float = 10.0) -> bool:
+    """Wait (at most ``timeout_s`` in all) until the cycle's PNGs are written; True when all were."""
+    deadline = time.monotonic() + timeout_s
+    ok = True
+    for future in images:
+        try:
+            ok &= bool(future.result(timeout=max(deadline - time.monotonic(), 0.0)))
+        except TimeoutError:
+            log.warning("images: still writing after %.0f s", timeout_s)
+            return False
+    return ok
 
 
 def _check_abort(abort: threading.Event, abort_error: Callable[[], MonoguideError]) -> None:

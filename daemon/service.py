@@ -58,6 +58,9 @@ async def run_service(config: CellConfig, state_dir: Path, *, stop: asyncio.Even
     """
     if config.plc is None:
         raise ConfigError(f"{config.path}: [plc]: the service needs the line's PLC (host, port)")
+    from monoguide.daemon.cycle import tune_malloc
+
+    tune_malloc()  # frame-sized buffers back to the system when freed: resident memory stays flat (docs/cycle.md)
     if plc is None:
         from monoguide.daemon.assembly import build_plc
 
@@ -362,6 +365,7 @@ class _Service:
                 log.warning("PLC: status word 0 not written at exit: %s", exc.message)
         with contextlib.suppress(DeviceError):
             await self.plc.close()
+        self.plc_connected = False  # a stopped service shows no device connected
         await self.devices.close()
         self.since = time.time()
         self._write_status_file()

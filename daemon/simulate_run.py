@@ -219,6 +219,26 @@ def _status_fields(pid: int) -> dict[str, float] | None:
 # --- private ------------------------------------------------------------------------------------
 
 
+# Runs in the child before it becomes ``argv``: asks Linux for SIGTERM when this process (the parent) dies,
+# even by kill -9 (PR_SET_PDEATHSIG, kept across exec), then becomes the child. A parent gone before the
+# request (the child was re-parented) ends the child at once. Not a preexec_fn: the parent has threads.
+# Linux sends it when the *thread* that started the child ends: run_simulation starts and stops its children
+# in the same call, so that thread outlives them.
+_LAUNCHER = (
+    "import ctypes, os, sys\n"
+    "if sys.platform.startswith('linux'):\n"
+    "    ctypes.CDLL(None, use_errno=True).prctl(1, 15, 0, 0, 0)\n"
+    "if os.getppid() != int(sys.argv[1]):\n"
+    "    sys.exit(143)\n"
+    "os.execv(sys.argv[2], sys.argv[2:])\n"
+)
+
+
+def _dies_with_us(argv: list[str]) -> list[str]:
+    """``argv`` started through the launcher above, so that the child ends when this process ends."""
+    return [sys.executable, "-c", _LAUNCHER, str(os.getpid()), *argv]
+
+
 def _raise_interrupt(_signum: int, _frame: object) -> None:
     raise KeyboardInterrupt
 
@@ -246,7 +266,7 @@ class _Children:
 
     def start(self, name: str, argv: list[str], log: Path, stdin: bool = False) -> _Child:
         log_file = log.open("w")
-        process = subprocess.Popen(argv, stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
+        process = subprocess.Popen(_dies_with_us(argv), stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
                                    stdout=subprocess.PIPE if stdin else log_file, stderr=log_file, text=True,
                                    start_new_session=True)  # Ctrl-C reaches us only: we stop them in order
         child = _Child(name, process, log, log_file)
@@ -269,6 +289,8 @@ class _Children:
                           f"{STOP_TIMEOUT_S:g} s of SIGTERM; killing it", file=sys.stderr)
                     process.kill()
                     process.wait(timeout=STOP_TIMEOUT_S)
+            with contextlib.suppress(OSError):  # what the child left behind in its own group (its session)
+                os.killpg(process.pid, signal.SIGKILL)
             if process.stdout is not None:
                 process.stdout.close()
             child.log_file.close()

@@ -37,6 +37,7 @@ from monoguide.solver.frames import check_transform, pose_difference
 log = logging.getLogger(__name__)
 
 POLL_S = 0.01
+ACK_POLL_S = 0.002  # while waiting for the offset's acknowledgement: on the cycle's overhead path
 MAX_SEQUENCE = 2**31 - 1  # an int32 register; the sequence wraps to 1, never 0 (0: nothing requested)
 
 # What the robot program answers in its status (UR: output_int_register_38, KUKA: <Handshake Status=...>)
@@ -181,6 +182,7 @@ class HandshakeRobot:
         self.pose_tolerance_mm, self.pose_tolerance_deg = pose_tolerance_mm, pose_tolerance_deg
         self._identity: RobotIdentity | None = None
         self._sequence = 0
+        self._poll_s = POLL_S  # the pause between status reads of an adapter that polls (see _pause)
 
     @property
     def identity(self) -> RobotIdentity | None:
@@ -228,8 +230,12 @@ class HandshakeRobot:
     def write_base_offset(self, D_b: np.ndarray, timeout_s: float | None = None) -> int:
         D_b = check_transform(D_b, "base offset D_b")  # a rigid transform, or NotARotation naming the defect
         sequence = self._request(COMMAND_OFFSET, 0, D_b)
-        status = self._wait_for_ack(sequence, self.ack_timeout_s if timeout_s is None else timeout_s,
-                                    RobotAckTimeout, "offset acknowledged", lambda s: True)
+        self._poll_s = ACK_POLL_S  # a short wait, and the line waits on it: look more often
+        try:
+            status = self._wait_for_ack(sequence, self.ack_timeout_s if timeout_s is None else timeout_s,
+                                        RobotAckTimeout, "offset acknowledged", lambda s: True)
+        finally:
+            self._poll_s = POLL_S
         check_program_status(status, self.name, f"offset {sequence}")
         log.info("%s: offset %d acknowledged", self.name, sequence)
         return sequence
@@ -238,7 +244,10 @@ class HandshakeRobot:
         raise NotImplementedError
 
     def _pause(self) -> None:
-        time.sleep(POLL_S)
+        """Between two status reads. An adapter whose status is a cached stream sleeps (``POLL_S``, while
+        moving; ``ACK_POLL_S`` while waiting for the offset's acknowledgement); one that can wait on its
+        wire (KUKA: the next report) overrides this."""
+        time.sleep(self._poll_s)
 
     def _request(self, command: int, pose_number: int, D_b: np.ndarray) -> int:
         check_ready(self.status(), self.name)

@@ -16,6 +16,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
+import cv2
 import numpy as np
 
 from monoguide.solver.camera import CameraModel
@@ -175,7 +176,13 @@ def measure_hole(
         half = max_offset + 2.0 * r
         roi = (math.floor(ex - half), math.floor(ey - half), int(2 * half) + 2, int(2 * half) + 2)
     where = f"hole expected at ({ex:.1f}, {ey:.1f}) r={r:.1f} px"
-    grey = as_grey(image, bit_depth)
+    located = _coarse_locate(image, roi, (ex, ey), r, max_offset, radius_tol, min_contrast, max_blur_px,
+                             max_saturated_fraction, min_contrast_to_noise, bit_depth)
+    if located is not None:  # one hole, found fast; anything else is decided by the full search below
+        grey, hole = located
+        return _refined(grey, hole) if photometric else hole
+    # only the part of the frame the search can reach is made grey, not a 5 MP float copy per hole (docs/cycle.md)
+    grey = _grey_window(image, roi, r, bit_depth)
     scan = _scan_grey(grey, roi, (ex, ey), r, DEFAULT_MIN_RADIUS_PX, DEFAULT_MAX_RADIUS_PX, min_contrast,
                       max_blur_px, max_saturated_fraction, False, min_contrast_to_noise)
     plausible = [h for h in scan.holes
@@ -333,6 +340,75 @@ def _faint_hole(
         contrast = float(np.median(outside) - np.median(inside))
         return float(seed.center[0]), float(seed.center[1]), contrast
     return None
+
+
+COARSE_RADIUS_PX = 3.0  # the coarse search sees the expected hole at about this radius
+COARSE_MIN_ROI_RADII = 12.0  # a ROI narrower than this many hole radii is searched at full resolution at once
+
+
+def _coarse_locate(
+    image: np.ndarray, roi: Sequence[int], expected: tuple[float, float], r: float, max_offset: float,
+    radius_tol: float, min_contrast: float, max_blur_px: float, max_saturated_fraction: float,
+    min_contrast_to_noise: float, bit_depth: int | None,
+) -> tuple[np.ndarray, HoleCandidate] | None:
+    """The fast path of :func:`measure_hole` for a large ROI: the dark blobs of the hole's size on a copy
+    downsampled to a hole radius of ~``COARSE_RADIUS_PX``, then the full-resolution search (the same
+    pipeline, the same pixels) in a small window around each. (grey, hole) when exactly one blob is there
+    and it gives exactly one plausible hole whose window is not saturated; else None, and the caller
+    searches the whole ROI at full resolution (which also gives every error its reason)."""
+    if not isinstance(image, np.ndarray) or image.ndim != 2 or len(roi) != 4:
+        return None
+    h, w = image.shape
+    x, y, rw, rh = (int(v) for v in roi)
+    x0, y0, x1, y1 = max(x, 0), max(y, 0), min(x + rw, w), min(y + rh, h)
+    f = int(r // COARSE_RADIUS_PX)
+    if f < 2 or min(x1 - x0, y1 - y0) < COARSE_MIN_ROI_RADII * r:
+        return None
+    x1, y1 = x0 + (x1 - x0) // f * f, y0 + (y1 - y0) // f * f  # whole f x f blocks: OpenCV's fast path
+    small = cv2.resize(image[y0:y1, x0:x1], ((x1 - x0) // f, (y1 - y0) // f), interpolation=cv2.INTER_AREA)
+    small_grey = as_grey(small, bit_depth)
+    r_s = r / f
+    seeds = [seed for seed in seed_dark_blobs(small_grey, (0, 0, small.shape[1], small.shape[0]), 0.6 * r_s,
+                                              1.6 * r_s, min_contrast)
+             if 0.5 * r <= seed.radius_px * f <= 1.6 * r]
+    if len(seeds) != 1:
+        return None
+    cx, cy = seeds[0].center * f + (f - 1) / 2.0 + np.array([x0, y0])
+    if math.hypot(cx - expected[0], cy - expected[1]) > max_offset + r:
+        return None
+    half = 1.6 * r + 2 * f + 8
+    window = (math.floor(cx - half), math.floor(cy - half), int(2 * half) + 2, int(2 * half) + 2)
+    window = (max(window[0], x0), max(window[1], y0), min(window[0] + window[2], x1) - max(window[0], x0),
+              min(window[1] + window[3], y1) - max(window[1], y0))
+    if window[2] < 4 or window[3] < 4:
+        return None
+    grey = _grey_window(image, window, r, bit_depth)
+    scan = _scan_grey(grey, window, expected, r, DEFAULT_MIN_RADIUS_PX, DEFAULT_MAX_RADIUS_PX, min_contrast,
+                      max_blur_px, max_saturated_fraction, False, min_contrast_to_noise)
+    plausible = [hole for hole in scan.holes
+                 if abs(hole.mean_radius / r - 1.0) <= radius_tol
+                 and math.hypot(hole.center[0] - expected[0], hole.center[1] - expected[1]) <= max_offset]
+    if len(plausible) != 1 or scan.refused or scan.saturated_fraction > max_saturated_fraction:
+        return None
+    return grey, plausible[0]
+
+
+def _grey_window(image: np.ndarray, roi: Sequence[int], r: float, bit_depth: int | None) -> np.ndarray:
+    """:func:`as_grey` of only the part of ``image`` that :func:`measure_hole` can look at for a hole of radius
+    ``r`` centred in ``roi``: the ROI grown by three times the blob search's own growth (a hole found there is
+    measured whole inside it). The array keeps the frame's size and pixel coordinates; the rest is zeros that
+    are never touched (calloc'd pages cost no memory). The whole image when the window would be most of it."""
+    if not isinstance(image, np.ndarray) or image.ndim < 2 or len(roi) != 4:
+        return as_grey(image, bit_depth)
+    h, w = image.shape[:2]
+    grow = 3 * (math.ceil(1.6 * 1.6 * r) + 16)
+    x, y, rw, rh = (int(v) for v in roi)
+    x0, y0, x1, y1 = max(x - grow, 0), max(y - grow, 0), min(x + rw + grow, w), min(y + rh + grow, h)
+    if x1 - x0 < 8 or y1 - y0 < 8 or (x1 - x0) * (y1 - y0) > 0.8 * w * h:
+        return as_grey(image, bit_depth)
+    grey = np.zeros((h, w), dtype=np.float32)
+    grey[y0:y1, x0:x1] = as_grey(image[y0:y1, x0:x1], bit_depth)
+    return grey
 
 
 def _roi_box(roi: Sequence[int] | None, shape: tuple[int, ...]) -> tuple[int, int, int, int]:

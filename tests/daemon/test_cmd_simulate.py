@@ -3,11 +3,13 @@ whole run end to end (the simulated cell and the service as real processes), jud
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
 import subprocess
 import sys
+import time
 import tomllib
 from pathlib import Path
 
@@ -173,24 +175,29 @@ def _simulate(tmp_path: Path, *args: str) -> tuple[subprocess.CompletedProcess[s
 @pytest.mark.timeout(RUN_TIMEOUT_S + 30)
 def test_a_json_run_with_faults_reports_what_the_truth_log_and_the_journal_say(tmp_path: Path) -> None:
     """One short run covers the three end-to-end checks (the suite's time is shared): the summary against the
-    truth log, two injected faults (one device, one PLC) with their codes and nothing written for them, and
+    truth log, three injected faults (camera, robot: the offset sent but never taken, PLC) with their codes and
+    nothing written for them, and
     standard output holding JSON lines only while the progress goes to standard error."""
-    done, work = _simulate(tmp_path, "--json", "--cycles", "5", "--fault", "camera timeout", "--fault",
-                           "plc trigger-dropped-early", "--host", "127.0.7.21", "--report", str(tmp_path / "report"))
+    done, work = _simulate(tmp_path, "--json", "--cycles", "7", "--fault", "camera timeout", "--fault",
+                           "plc trigger-dropped-early", "--fault", "robot no-ack", "--host", "127.0.7.21",
+                           "--report", str(tmp_path / "report"))
     assert done.returncode == 0, done.stderr
     objects = [json.loads(line) for line in done.stdout.splitlines()]  # every stdout line is JSON
-    assert all(f"cycle {k}/5" in done.stderr for k in range(1, 6))  # the progress went to stderr
+    assert all(f"cycle {k}/7" in done.stderr for k in range(1, 8))  # the progress went to stderr
     *cycles, summary = objects
-    assert summary["summary"] is True and summary["cycles"] == len(cycles) == 5
-    assert [c["fault"] for c in cycles] == [None, "camera timeout", None, "plc trigger-dropped-early", None]
-    assert [c["status"] for c in cycles] == ["ok", "error", "ok", "error", "ok"]
-    assert (cycles[1]["error_code"], cycles[3]["error_code"]) == ("DEVICE_TIMEOUT", "PLC_TRIGGER_DROPPED")
-    assert all(f["reported"] and f["back_ready"] for f in summary["faults"]) and len(summary["faults"]) == 2
-    assert summary["errors"] == {"DEVICE_TIMEOUT": 1, "PLC_TRIGGER_DROPPED": 1}
-    # the truth: the robot got offsets for the three good cycles only, and they are what the line read
+    assert summary["summary"] is True and summary["cycles"] == len(cycles) == 7
+    assert [c["fault"] for c in cycles] == [None, "camera timeout", None, "plc trigger-dropped-early", None,
+                                            "robot no-ack", None]
+    assert [c["status"] for c in cycles] == ["ok", "error", "ok", "error", "ok", "error", "ok"]
+    assert [cycles[k]["error_code"] for k in (1, 3, 5)] == ["DEVICE_TIMEOUT", "PLC_TRIGGER_DROPPED",
+                                                            "ROBOT_ACK_TIMEOUT"]
+    assert all(f["reported"] and f["back_ready"] for f in summary["faults"]) and len(summary["faults"]) == 3
+    assert summary["errors"] == {"DEVICE_TIMEOUT": 1, "PLC_TRIGGER_DROPPED": 1, "ROBOT_ACK_TIMEOUT": 1}
+    # the truth: the robot kept offsets of the four good cycles only (not the unacknowledged one), and they
+    # are what the line read
     truth = read_truth_log(work / "truth.jsonl")
     grasped = [t for t in truth if t["offset_written"] is not None]
-    assert len(grasped) == 3 == summary["grasped"] == summary["ok"]
+    assert len(grasped) == 4 == summary["grasped"] == summary["ok"]
     good = [c for c in cycles if c["status"] == "ok"]
     for cycle, part in zip(good, grasped, strict=True):
         np.testing.assert_allclose(cycle["offset_written"], part["offset_written"], atol=1e-3)
@@ -203,8 +210,72 @@ def test_a_json_run_with_faults_reports_what_the_truth_log_and_the_journal_say(t
     assert summary["offsets_written_on_failure"] == 0
     with Journal(work / "state") as journal:
         rows = list(reversed(journal.last_cycles(10)))
-    assert [r.status for r in rows] == ["ok", "error", "ok", "error", "ok"]
+    assert [r.status for r in rows] == ["ok", "error", "ok", "error", "ok", "error", "ok"]
     cycle_s = np.median([r.timings_s["cycle"] for r in rows if r.status == "ok"])
     assert math.isclose(summary["cycle_ms_median"], 1000 * cycle_s, abs_tol=1e-3)
     assert 50.0 < summary["rss_mb"] < 4000.0
     assert (tmp_path / "report" / "report.md").exists()
+
+
+def _descendants(pid: int) -> set[int]:
+    """The processes below ``pid`` (children, their children ...) as /proc tells them now."""
+    found, todo = set(), [pid]
+    while todo:
+        try:
+            kids = Path(f"/proc/{todo.pop()}/task").glob("*/children")
+            pids = {int(k) for path in kids for k in path.read_text().split()}
+        except OSError:
+            continue
+        todo.extend(pids - found)
+        found |= pids
+    return found
+
+
+def _cmdline(pid: int) -> bytes:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ")
+    except OSError:
+        return b""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.timeout(120)
+def test_the_cell_and_the_service_end_when_simulate_is_killed(tmp_path: Path) -> None:
+    """kill -9 of ``monoguide simulate`` (a killed pytest, an OOM kill) leaves no ``monoguide run`` or sim-cell
+    behind: the children asked Linux for SIGTERM when their parent dies."""
+    env = {**os.environ, "COLUMNS": "200"}
+    simulate = subprocess.Popen([sys.executable, "-m", "monoguide.daemon.cli", "simulate", "--work-dir",
+                                 str(tmp_path / "work"), "--cycles", "50", "--host", "127.0.11.31"],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT)
+    try:
+        assert simulate.stderr is not None
+        for line in simulate.stderr:  # the service is started once the cell listens
+            if "starting the service" in line:
+                break
+        deadline, commands = time.monotonic() + 30, []
+        while time.monotonic() < deadline:  # both children exec'd (the service's run, the cell's sim-cell)
+            children = _descendants(simulate.pid)
+            commands = [_cmdline(c) for c in children]
+            if any(b" run " in c for c in commands) and any(b" sim-cell " in c for c in commands):
+                break
+            time.sleep(0.1)
+        assert any(b" run " in c for c in commands) and any(b" sim-cell " in c for c in commands), commands
+        simulate.kill()
+        simulate.wait(timeout=10)
+        deadline = time.monotonic() + 10
+        while (left := {c for c in children if _alive(c)}) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not left, [_cmdline(c) for c in left]
+    finally:
+        if simulate.poll() is None:
+            simulate.kill()
+        for child in _descendants(simulate.pid):
+            with contextlib.suppress(OSError):
+                os.kill(child, 9)

@@ -77,3 +77,15 @@ def test_empty_missing_and_corrupt(tmp_path: Path) -> None:
     run = _run(tmp_path, "--json")
     assert run.exit_code == 1 and run.stderr.startswith("JOURNAL_NOT_A_DATABASE")
     assert json.loads(run.stdout)["journal"]["error"]["code"] == "JOURNAL_NOT_A_DATABASE"
+
+
+def test_last_result_reads_as_words_and_a_clock_time(tmp_path: Path) -> None:
+    finished = time.mktime((2026, 11, 23, 14, 2, 31, 0, 0, -1))
+    _status(tmp_path, last_result={"cycle": 12, "status": "ok", "job": 1, "part_tag": 7, "error_code": None,
+                                   "finished_at": finished})
+    run = _run(tmp_path)
+    assert run.exit_code == 0, run.output
+    assert "last result: cycle 12 ok, job 1, part tag 7, finished 2026-11-23 14:02:31" in run.stdout
+    assert "None" not in run.stdout
+    _status(tmp_path, last_result={"cycle": 13, "status": "error", "error_code": "PLC_TRIGGER_DROPPED"})
+    assert "last result: cycle 13 error PLC_TRIGGER_DROPPED" in _run(tmp_path).stdout
