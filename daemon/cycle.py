@@ -22,7 +22,6 @@ Timings (seconds) go into one dict, ``Measurement.timings_s``, shared with ``Sol
 
 from __future__ import annotations
 
-import contextlib
 import copy
 import itertools
 import logging
@@ -30,7 +29,6 @@ import math
 import re
 import threading
 import time
-import weakref
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -58,8 +56,6 @@ from monoguide.solver.record import DEFAULT_SIGMA_PX, FORMAT, MeasurementRecord,
 
 log = logging.getLogger(__name__)
 
-_CONFIGURED: weakref.WeakKeyDictionary[Any, CameraSettings] = weakref.WeakKeyDictionary()
-_PREPARED: dict[int, tuple[Any, ...]] = {}  # the last config's record template, search plan, taught poses
 ROI_MARGIN_PX = 24.0  # beyond the envelope's spread and the hole's own size
 PNG_COMPRESSION = 1  # fast: a 5 MP frame in ~0.1 s
 # Long-lived workers (not a new thread per cycle): one finds holes while the robot moves, one writes the PNGs
@@ -153,8 +149,10 @@ class _ViewPlan:
 
 
 class CycleRunner:
-    """The blocking steps of a cycle on opened devices. The camera is configured at the first
-    :meth:`measure` (and again after it was lost)."""
+    """The blocking steps of a cycle on opened devices; one runner serves every cycle on the same camera and
+    robot (the service builds a new one when a device was reopened). Building it plans the views (~0.1 s, off
+    the cycle's path); the camera is configured at the first :meth:`measure` and again after a failed grab.
+    ``images_dir`` may be changed between cycles (the service gives each cycle its own folder)."""
 
     def __init__(self, config: CellConfig, camera: Camera, robot: Robot, images_dir: Path | None = None) -> None:
         if config.reference.T_cf_b is None:
@@ -164,15 +162,10 @@ class CycleRunner:
         self.checks = config.checks or ChecksConfig()
         c = config.camera
         self.settings = CameraSettings(c.pixel_format, c.exposure_us, c.gain_db, c.region)
-        cached = _PREPARED.get(id(config))
-        if cached is not None and cached[0] is config and cached[1] == self.checks:
-            self._template, self._views, self._taught = cached[2:]
-        else:  # ~0.1 s: once per config, not on every cycle's critical path
-            self._taught = taught_flange_poses(config)
-            self._template = self._record_template()
-            self._views = tuple(self._plan_view(i) for i in range(len(config.measuring_poses)))
-            _PREPARED.clear()
-            _PREPARED[id(config)] = (config, self.checks, self._template, self._views, self._taught)
+        self._taught = taught_flange_poses(config)
+        self._template = self._record_template()
+        self._views = tuple(self._plan_view(i) for i in range(len(config.measuring_poses)))
+        self._camera_configured = False
 
     # --- the four steps ---------------------------------------------------------------------------
 
@@ -283,21 +276,16 @@ class CycleRunner:
     # --- measuring ----------------------------------------------------------------------------------
 
     def _configure_camera(self) -> None:
-        """The settings once per camera (the service builds a runner per cycle on the same camera), again after
-        the camera failed (it may have been reopened)."""
-        try:
-            if _CONFIGURED.get(self.camera) != self.settings:
-                self.camera.configure(self.settings)
-                _CONFIGURED[self.camera] = self.settings
-        except TypeError:  # a camera that cannot be weakly referenced: configured every cycle
+        """The settings once, and again after a failed grab (the camera may have been reset)."""
+        if not self._camera_configured:
             self.camera.configure(self.settings)
+            self._camera_configured = True
 
     def _grab(self) -> Frame:
         try:
             return self.camera.grab(self.config.camera.grab_timeout_s)
         except DeviceError:
-            with contextlib.suppress(TypeError, KeyError):
-                del _CONFIGURED[self.camera]  # reopened, it needs its settings again
+            self._camera_configured = False
             raise
 
     def _find(self, i: int, frame: Frame, T_b_f: np.ndarray, path: Path | None = None) -> tuple[Capture, float]:

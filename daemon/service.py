@@ -100,6 +100,8 @@ class _Service:
         self.plc_connected, self.plc_attempts, self.plc_next_try = False, 0, 0.0
         self.plc_error: MonoguideError | None = None
         self.cycle_task: asyncio.Task[None] | None = None
+        self.runner: Any = None  # the CycleRunner, kept while the camera and robot stay the same objects
+        self.runner_devices: tuple[Any, Any] | None = None
         self.housekeeping: asyncio.Task[None] | None = None  # after DONE: timings, image pruning
         self.abort, self.abort_error = threading.Event(), None
         self.outcome_ok: bool | None = None

@@ -66,8 +66,12 @@ async def run_stages(service: _Service, inputs: PlcInputs) -> Outcome:
         images_dir = None
         if service.settings.keep_images:
             images_dir = service.journal.images_dir / f"cycle-{service.journal.cycle_counter() + 1}"
-        runner = service.runner_factory(service.config, service.devices.handle("camera"),
-                                        service.devices.handle("robot"), images_dir)
+        devices = (service.devices.handle("camera"), service.devices.handle("robot"))
+        if service.runner is None or service.runner_devices != devices:  # first cycle, or a device reopened
+            service.runner = service.runner_factory(service.config, *devices, images_dir)
+            service.runner_devices = devices
+        runner = service.runner
+        runner.images_dir = images_dir
         outcome.measurement = await stage(runner.measure, job, service.abort, lambda: service.abort_error)
         machine.fire(Cause.VIEWS_MEASURED, f"{len(outcome.measurement.captures)} views")
         outcome.solution = await stage(runner.solve, outcome.measurement)
