@@ -9,6 +9,10 @@ kept images). Asserts nothing; not part of the test suite.
 
     .venv/bin/python benchmarks/soak.py                    # 2,000 cycles (hours: about 3-10 s a cycle)
     .venv/bin/python benchmarks/soak.py --cycles 40        # a short try
+    .venv/bin/python benchmarks/soak.py --sharp --move-time 0.1   # 2,000 cycles in about an hour
+
+``--sharp`` (no simulated defocus) and ``--move-time`` change only the simulator's cost per cycle (rendering,
+robot motion); the service runs the same code either way.
 """
 
 from __future__ import annotations
@@ -19,6 +23,9 @@ import statistics
 import tempfile
 from pathlib import Path
 from typing import Any
+
+from bench_cycle import HOST
+from bench_cycle import _config as bench_config
 
 from monoguide.daemon.simulate_run import Progress, RunOptions, run_simulation
 
@@ -33,8 +40,13 @@ def main() -> None:
     parser.add_argument("--config", type=Path, default=ROOT / "config" / "sim-cell.toml")
     parser.add_argument("--host", default=None, help="loopback address for the robot and the PLC")
     parser.add_argument("--work-dir", type=Path, default=None, help="keep the run's files here")
+    parser.add_argument("--sharp", action="store_true", help="no simulated defocus (faster rendering)")
+    parser.add_argument("--move-time", type=float, default=None, help="[robot] sim_move_time_s (s per pose)")
     args = parser.parse_args()
     work = args.work_dir or Path(tempfile.mkdtemp(prefix="monoguide-soak-"))
+    config = args.config
+    if args.sharp or args.move_time is not None:
+        config = sim_config(args.config, work, args.move_time, args.sharp)
     per_cycle: list[dict[str, float]] = []
     latest: dict[str, Any] = {}
 
@@ -51,7 +63,7 @@ def main() -> None:
 
     progress = Progress(part=on_part, note=lambda text: print(text, flush=True), sample=on_sample)
     try:
-        result = run_simulation(RunOptions(args.config, work, args.cycles, host=args.host), progress)
+        result = run_simulation(RunOptions(config, work, args.cycles, host=args.host), progress)
         journal_bytes = sum(p.stat().st_size for p in result.cell.state_dir.glob("journal.sqlite3*"))
         image_bytes = sum(p.stat().st_size for p in (result.cell.state_dir / "images").rglob("*") if p.is_file())
         rows = len(result.journal_rows)
@@ -60,6 +72,12 @@ def main() -> None:
             shutil.rmtree(work, ignore_errors=True)
     print()
     print(verdict(per_cycle, rows, journal_bytes, image_bytes))
+
+
+def sim_config(path: Path, work: Path, move_time: float | None, sharp: bool) -> Path:
+    """The cell config with the simulator's cost per cycle changed (defocus, robot motion)."""
+    (work / "config").mkdir(parents=True, exist_ok=True)
+    return bench_config(path, work / "config", move_time, sharp, HOST)
 
 
 def verdict(per_cycle: list[dict[str, float]], rows: int, journal_bytes: int, image_bytes: int) -> str:

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from monoguide.daemon.config import CellConfig, default_sim_state_file
+from monoguide.daemon.config import CellConfig, default_sim_state_file, load_cell_config
 from monoguide.drivers.camera import Camera, CameraSettings
 from monoguide.drivers.errors import ConfigError, DeviceNotFound
 from monoguide.drivers.genicam_camera import GenICamCamera
@@ -128,12 +128,20 @@ def taught_flange_poses(config: CellConfig) -> tuple[np.ndarray, ...]:
 
 
 def sim_cell_spec(config: CellConfig) -> SimCellSpec:
-    """The simulated cell's definition from the cell config (``[sim]`` with the shared sections)."""
+    """The simulated cell's definition from the cell config (``[sim]`` with the shared sections). With ``[sim]
+    truth_config`` the cell is that file's: this file's calibration values are then only what the service
+    believes (``monoguide simulate --calibration``), the simulated devices keep the truth."""
     from monoguide.drivers.sim.cell import SimCellSpec, SimTarget
 
     sim = config.sim
     if sim is None:
         raise ConfigError(f"{config.path}: the simulated cell needs a [sim] section")
+    if sim.truth_config is not None:
+        truth = load_cell_config(sim.truth_config)
+        if truth.sim is None or truth.sim.truth_config is not None:
+            raise ConfigError(f"{config.path}: [sim] truth_config = {sim.truth_config}: expected a simulated cell "
+                              f"config with a [sim] section and no truth_config of its own")
+        return sim_cell_spec(truth)
     if config.reference.T_cf_b is None:
         raise ConfigError(f"{config.path}: [reference] T_cf_b: the simulated robot needs its base pose")
     return SimCellSpec(
@@ -151,6 +159,7 @@ def sim_cell_spec(config: CellConfig) -> SimCellSpec:
         deviation_rotation_deg=sim.deviation_rotation_deg,
         repeatability_mm=sim.repeatability_mm,
         repeatability_deg=sim.repeatability_deg,
+        reported_repeatability_fraction=sim.reported_repeatability_fraction,
         tracker_noise_mm=sim.tracker_noise_mm,
         exposure_us_nominal=sim.exposure_us_nominal,
         benchmarks_cf=dict(sim.benchmarks),
@@ -158,6 +167,7 @@ def sim_cell_spec(config: CellConfig) -> SimCellSpec:
         targets=tuple(SimTarget(t.name, t.T_cf_t, t.points_t) for t in sim.targets),
         focus_distance_mm=sim.focus_distance_mm,
         aperture_mm=sim.aperture_mm,
+        target_marks=config.calibration_target.marks if config.calibration_target is not None else None,
     )
 
 
@@ -166,6 +176,15 @@ def build_sim_cell(config: CellConfig) -> SimCell:
     from monoguide.drivers.sim.cell import SimCell
 
     return SimCell(sim_cell_spec(config))
+
+
+def build_sim_operator(cell: SimCell, targets: Path | None, robot_truth: Path | None, seed: int) -> Any:
+    """The simulated person at the cell of ``monoguide calibrate --sim`` (the wizard's operator protocol):
+    acts on ``cell``'s scene and rewrites the simulated tracker's ``targets`` file (the flange SMR following
+    the controller's ``robot_truth``)."""
+    from monoguide.drivers.sim.calibration_scene import SimOperator
+
+    return SimOperator(cell, targets, robot_truth, seed)
 
 
 def sim_state_file(config: CellConfig) -> Path:

@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 
 from monoguide.daemon import cmd_detect, cmd_journal, cmd_plan, cmd_probe, cmd_run, cmd_simcell, cmd_solve, cmd_status
+from monoguide.daemon.cmd_calibrate import calibrate
 from monoguide.daemon.cmd_simulate import simulate
 
 HELP = "Vision-guided robotics: measure a large part with a flange camera, write the robot's base offset."
@@ -27,6 +28,7 @@ app.command("sim-cell")(cmd_simcell.sim_cell)
 app.command("status")(cmd_status.status)
 app.command("simulate")(simulate)
 app.command("run")(cmd_run.run)
+app.command("calibrate")(calibrate)
 app.add_typer(cmd_journal.app, name="journal")
 
 

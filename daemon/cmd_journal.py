@@ -19,6 +19,7 @@ import numpy as np
 import typer
 
 from monoguide.daemon.cmd_solve import _solve_one, _xyzabc
+from monoguide.daemon.config import load_cell_config
 from monoguide.daemon.console import stderr_console, stdout_console
 from monoguide.daemon.journal import JOURNAL_FILE, Journal, JournalEntryMissing, JournalError, JournalRow
 from monoguide.daemon.state_dir import STATE_DIR_HELP, existing_state_dir
@@ -141,10 +142,14 @@ def resolve(
     state_dir: StateDirOption = None,
     method: Annotated[str, typer.Option(help=f"Estimator: {', '.join(sorted(ESTIMATORS))}.")] = "ml",
     robust: Annotated[bool, typer.Option(help="Huber loss in the ML refinement (down-weights outliers).")] = False,
+    config: Annotated[Path | None, typer.Option("--config", "-c", help="the cell config the service ran with: "
+                                                "its [camera] T_f_c takes the robot's repeatability at the flange, "
+                                                "as the cycle does")] = None,
     json_output: JsonOption = False,
 ) -> None:
     """Solve the cycle's stored measurement record again with today's solver; print both results and
-    their difference (deg, mm). Exit 1 when today's solve fails."""
+    their difference (deg, mm). Exit 1 when today's solve fails. Give the cell's --config to weight the views
+    exactly as the cycle did (the record does not carry the camera's mounting on the flange)."""
     if method not in ESTIMATORS:
         raise typer.BadParameter(f"{method!r}; choose one of {', '.join(sorted(ESTIMATORS))}", param_hint="--method")
     if robust and method != "ml":
@@ -152,12 +157,13 @@ def resolve(
     outcome: dict[str, Any] = {}
 
     def run() -> None:
+        T_f_c = load_cell_config(config).camera.T_f_c if config is not None else None
         with open_journal(state_dir) as journal:
             row = journal.cycle(number)
         if row.record is None:
             raise CycleWithoutRecord(f"cycle {number} failed before its measurement record existed"
                                      f" ({row.error_code}: {row.error_message}); nothing to solve again")
-        today = _solve_one(f"cycle {number}", row.record, method, robust, DEFAULT_FALSE_ALARM_RATE)
+        today = _solve_one(f"cycle {number}", row.record, method, robust, DEFAULT_FALSE_ALARM_RATE, T_f_c)
         stored = row.result if row.result is not None else {
             "status": "error", "error": {"code": row.error_code, "message": row.error_message}}
         outcome.update(cycle=number, stored=stored, today=today["result"],

@@ -23,8 +23,9 @@ from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsed
 from rich.progress import Progress as RichProgress
 
 from monoguide.daemon.console import stderr_console, stdout_console
+from monoguide.daemon.simulate_config import predicted_grasp_sigma
 from monoguide.daemon.simulate_report import write_report
-from monoguide.daemon.simulate_run import Progress, RunOptions, cycles_needed_for_faults, run_simulation
+from monoguide.daemon.simulate_run import Progress, RunOptions, RunResult, cycles_needed_for_faults, run_simulation
 from monoguide.daemon.simulate_summary import Targets, join_cycles, render, summarize
 from monoguide.drivers.errors import ConfigError
 from monoguide.solver.errors import MonoguideError
@@ -54,6 +55,9 @@ def simulate(
         list[str] | None, typer.Option("--fault", help="with --faults: only this one, e.g. 'robot stall' (repeatable)")
     ] = None,
     config: Annotated[Path | None, typer.Option("--config", "-c", help="simulated cell config (TOML)")] = None,
+    calibration: Annotated[Path | None, typer.Option(
+        "--calibration", help="the service uses this file's calibration values (monoguide calibrate's output); "
+                              "the simulated cell keeps --config's")] = None,
     json_out: Annotated[bool, typer.Option("--json", help="one JSON object per cycle, then the summary")] = False,
     report: Annotated[Path | None, typer.Option("--report", help="write report.md and PNG plots here")] = None,
     host: Annotated[
@@ -80,7 +84,8 @@ def simulate(
         cycles = needed
     work = Path(work_dir) if work_dir is not None else Path(tempfile.mkdtemp(prefix="monoguide-simulate-"))
     keep = work_dir is not None
-    options = RunOptions(config or default_config(), work, cycles, seed, robot, perfect_robot, faults, host, names)
+    options = RunOptions(config or default_config(), work, cycles, seed, robot, perfect_robot, faults, host, names,
+                         calibration)
     try:
         with _progress(err, cycles) as progress:
             result = run_simulation(options, progress)
@@ -96,11 +101,14 @@ def simulate(
         err.print(f"the run's files (config, logs, journal, truth log) are kept in {work}")
         raise typer.Exit(EXIT_RUN_FAILED) from exc
     cycles_out = join_cycles(result.plc_records, result.journal_rows, result.truth, result.faults)
+    repeatability = _repeatability(result)
+    predicted = _prediction(result, repeatability, err)
     summary = summarize(cycles_out, result.truth, result.journal_rows, result.faults, result.rss,
-                        Targets.for_run(perfect_robot), result.logged_codes)
+                        Targets.for_run(perfect_robot, predicted["sigma_mm"], predicted["sigma_deg"]),
+                        result.logged_codes)
     summary.update({"seed": _seed(result.cell.data), "robot": result.cell.data["robot"]["backend"],
-                    "perfect_robot": perfect_robot, "elapsed_s": round(result.elapsed_s, 1),
-                    "service_exit": result.service_exit})
+                    "perfect_robot": perfect_robot, **repeatability, "calibration": result.cell.calibration,
+                    "elapsed_s": round(result.elapsed_s, 1), "service_exit": result.service_exit})
     if json_out:
         for c in cycles_out:
             sys.stdout.write(json.dumps(c) + "\n")
@@ -122,6 +130,27 @@ def simulate(
 
 
 # --- private ------------------------------------------------------------------------------------
+
+
+def _repeatability(result: RunResult) -> dict[str, float]:
+    """The simulated robot's repeatability (per axis at the flange), the share its reported pose sees, and the
+    rest, which the service cannot correct: a camera pose error per view."""
+    sim = result.cell.data["sim"]
+    mm, deg = float(sim.get("repeatability_mm", 0.05)), float(sim.get("repeatability_deg", 0.01))
+    seen = float(sim.get("reported_repeatability_fraction", 0.0))
+    return {"repeatability_mm": mm, "repeatability_deg": deg, "reported_repeatability_fraction": seen,
+            "unseen_repeatability_mm": (1.0 - seen) * mm, "unseen_repeatability_deg": (1.0 - seen) * deg}
+
+
+def _prediction(result: RunResult, repeatability: dict[str, float], err: Any) -> dict[str, float | None]:
+    """The layout's predicted sigma at the grasp point for the run's cell and the repeatability nobody sees."""
+    try:
+        return predicted_grasp_sigma(result.cell.config, repeatability["unseen_repeatability_mm"],
+                                     repeatability["unseen_repeatability_deg"])
+    except MonoguideError as exc:
+        err.print(f"no predicted sigma for this layout ({exc.code}: {exc.message}); the grasp target is the "
+                  f"paper's 0.5 mm")
+        return {"sigma_mm": None, "sigma_deg": None}
 
 
 def _seed(data: dict[str, Any]) -> int | None:

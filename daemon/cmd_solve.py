@@ -12,6 +12,7 @@ import json
 import sys
 import time
 from collections.abc import Iterable, Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -72,14 +73,19 @@ def solve(
 # --- solving ------------------------------------------------------------------------------------
 
 
-def _solve_one(source: str, data: Any, method: str, robust: bool, false_alarm_rate: float) -> dict[str, Any]:
-    """The printed row of one record: its source, its result object (the spec's), the error against truth."""
+def _solve_one(source: str, data: Any, method: str, robust: bool, false_alarm_rate: float,
+               T_f_c: np.ndarray | None = None) -> dict[str, Any]:
+    """The printed row of one record: its source, its result object (the spec's), the error against truth.
+    With ``T_f_c`` (the camera on the flange) the record's view sigmas are the robot's repeatability at the
+    flange, as the cycle takes them (the record format has no place for the camera's mounting)."""
     record_id = data.get("id") if isinstance(data, dict) and isinstance(data.get("id"), str) else None
     if isinstance(data, MonoguideError):
         return {"source": source, "result": error_to_dict(None, data), "truth_error": None}
     try:
         try:
             record = parse_record(data)
+            if T_f_c is not None and (record.problem.view_sigma_mm or record.problem.view_sigma_deg):
+                record = replace(record, problem=record.problem.with_flange(T_f_c))
             start = time.perf_counter()
             result = solve_pose(record.problem, method, robust=robust, false_alarm_rate=false_alarm_rate)
             elapsed_ms = (time.perf_counter() - start) * 1e3

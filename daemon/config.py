@@ -2,8 +2,9 @@
 
 Sections: ``[cell]``, ``[camera]`` (+ ``[camera.intrinsics]``), ``[part]``, ``[reference]``,
 ``[[measuring_poses]]``, and the optional ``[tracker]``, ``[sim]``, ``[layout]``, ``[robot]``, ``[plc]``
-(``docs/plc-interface.md``). Matrices are 4x4 row-major lists, lengths in mm, angles in degrees. Relative
-paths are relative to the config file. The keys are documented in ``docs/cell-config.md``.
+(``docs/plc-interface.md``), ``[cell_frame]``, ``[calibration_target]`` and ``[calibration]`` (the provenance
+``monoguide calibrate`` writes, ``docs/calibration.md``). Matrices are 4x4 row-major lists, lengths in mm,
+angles in degrees. Relative paths are relative to the config file. The keys are documented in ``docs/cell-config.md``.
 
 Strict: a bad file raises a :class:`ConfigError` naming the key, the value and why; a required key that
 is missing is :class:`ConfigMissingKey` (never a zero), an unknown key or section is
@@ -20,6 +21,7 @@ import os
 import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +37,7 @@ from monoguide.daemon.config_reader import (
 from monoguide.drivers.errors import ConfigError
 from monoguide.drivers.plc_registers import BLOCK_SIZE as PLC_BLOCK_SIZE
 from monoguide.drivers.plc_registers import WORD_ORDERS as PLC_WORD_ORDERS
+from monoguide.solver.calibration.target import TargetMarks, grid_marks
 from monoguide.solver.camera import CameraModel
 from monoguide.solver.errors import RecordError
 from monoguide.solver.frames import compose
@@ -181,6 +184,8 @@ class SimConfig:
     deviation_rotation_deg: tuple[float, float, float] = (0.5, 0.5, 2.0)
     repeatability_mm: float = 0.05
     repeatability_deg: float = 0.01
+    reported_repeatability_fraction: float = 1.0  # share of a stop's deviation the robot's report sees
+    truth_config: Path | None = None  # the simulated devices' cell (monoguide simulate --calibration)
     tracker_noise_mm: float = 0.025
     exposure_us_nominal: float = 8000.0
     benchmarks: dict[str, np.ndarray] = field(default_factory=dict)  # SMR nests in the cell frame
@@ -209,6 +214,27 @@ class CalibrationTarget:
     points_t: np.ndarray  # (m, 3) tracker-measurable points (nests in its featured holes), target frame
 
 
+CELL_FRAME_METHODS = ("best-fit", "3-2-1")
+# the wizard's steps (daemon/calibrate_rig.py STEPS), the keys of [calibration.steps]
+CALIBRATION_STEPS = ("intrinsics", "cell", "base", "part", "sfi", "verify", "accuracy")
+
+
+@dataclass(frozen=True)
+class CellFrameConfig:
+    """``[cell_frame]``: the benchmark SMR nests that define the cell frame CF (docs/calibration.md)."""
+
+    method: str  # "best-fit" (all benchmarks) or "3-2-1" (origin at the first, x to the second, xy through the third)
+    benchmarks: dict[str, np.ndarray]  # nest name -> nominal coordinates in CF, mm (file order kept)
+
+
+@dataclass(frozen=True)
+class CalibrationTargetConfig:
+    """``[calibration_target]``: the target with circular marks the measuring poses are calibrated with."""
+
+    nests_t: np.ndarray  # (m, 3) its SMR nests in its own frame TF, mm (tracker names T<i>.<k>, k 1-based)
+    marks: TargetMarks  # marks_cols x marks_rows marks at marks_pitch_mm from marks_origin_t
+
+
 @dataclass(frozen=True)
 class CellConfig:
     path: Path
@@ -225,6 +251,9 @@ class CellConfig:
     plc: PlcConfig | None = None
     service: ServiceConfig | None = None
     checks: ChecksConfig | None = None
+    cell_frame: CellFrameConfig | None = None
+    calibration_target: CalibrationTargetConfig | None = None
+    calibration: dict[str, Any] | None = None  # provenance written by `monoguide calibrate`, as read
 
 
 def load_cell_config(path: str | os.PathLike[str]) -> CellConfig:
@@ -377,6 +406,8 @@ def _sim(t: ConfigTable) -> SimConfig:
         deviation_rotation_deg=tuple(dev.vector("rotation_deg", 3, (0.5, 0.5, 2.0))),
         repeatability_mm=t.number("repeatability_mm", 0.05, nonnegative=True),
         repeatability_deg=t.number("repeatability_deg", 0.01, nonnegative=True),
+        reported_repeatability_fraction=t.number("reported_repeatability_fraction", 1.0, nonnegative=True),
+        truth_config=t.path("truth_config", None),
         tracker_noise_mm=t.number("tracker_noise_mm", 0.025, nonnegative=True),
         exposure_us_nominal=t.number("exposure_us_nominal", 8000.0, positive=True),
         benchmarks=benchmarks,
@@ -385,6 +416,9 @@ def _sim(t: ConfigTable) -> SimConfig:
         focus_distance_mm=t.number("focus_distance_mm", None, positive=True),
         aperture_mm=t.number("aperture_mm", 0.0, nonnegative=True),
     )
+    if out.reported_repeatability_fraction > 1.0:
+        raise ConfigError(f"{t.where}.reported_repeatability_fraction = {out.reported_repeatability_fraction}: "
+                          "expected 0 (the report sees none of a stop's deviation) .. 1 (all of it)")
     if out.aperture_mm > 0 and out.focus_distance_mm is None:
         raise ConfigError(f"{t.where}.aperture_mm = {out.aperture_mm}: a defocused lens needs focus_distance_mm")
     dev.done()
@@ -507,6 +541,81 @@ def _checks(t: ConfigTable) -> ChecksConfig:
     return out
 
 
+def _cell_frame(t: ConfigTable) -> CellFrameConfig:
+    method = t.choice("method", CELL_FRAME_METHODS, "best-fit")
+    bench = t.table("benchmarks")
+    benchmarks = {k: bench.vector(k, 3) for k in list(bench.raw)}  # named by the cell: every key is a nest
+    bench.done()
+    if len(benchmarks) < 3:
+        raise ConfigError(f"{t.where}.benchmarks: {len(benchmarks)} nests ({sorted(benchmarks)}); the cell frame "
+                          f"needs at least 3")
+    t.done()
+    return CellFrameConfig(method, benchmarks)
+
+
+def _calibration_target(t: ConfigTable) -> CalibrationTargetConfig:
+    nests = t.points("nests_t")
+    if len(nests) < 3:
+        raise ConfigError(f"{t.where}.nests_t: {len(nests)} nests; the target's frame needs at least 3")
+    cols, rows = t.integer("marks_cols", minimum=2), t.integer("marks_rows", minimum=2)
+    pitch = t.number("marks_pitch_mm", positive=True)
+    radius = t.number("marks_radius_mm", positive=True)
+    if radius >= pitch / 2:
+        raise ConfigError(f"{t.where}.marks_radius_mm = {radius:g}: marks of this radius touch at a pitch of "
+                          f"{pitch:g} mm (must be below {pitch / 2:g})")
+    origin = t.vector("marks_origin_t", 3)
+    t.done()
+    grid = grid_marks(cols, rows, pitch, radius, (float(origin[0]), float(origin[1])))
+    centres = grid.centers_t.copy()
+    centres[:, 2] = origin[2]
+    return CalibrationTargetConfig(nests, TargetMarks(centres, radius))
+
+
+def _calibration(t: ConfigTable) -> dict[str, Any]:
+    """Provenance, read loosely but typed: the wizard's keys are known (a misspelt one is refused), the devices
+    and the per-step summaries take any names (steps: one of CALIBRATION_STEPS)."""
+    out: dict[str, Any] = {}
+    if isinstance(t.raw.get("date"), datetime):  # an unquoted TOML date-time is as good as its text
+        t.raw["date"] = t.raw["date"].isoformat()
+    date = t.text("date", None)
+    if date is not None:
+        try:
+            datetime.fromisoformat(date)
+        except ValueError as exc:
+            raise ConfigError(f"{t.where}.date = {date!r}: expected an ISO 8601 date-time") from exc
+        out["date"] = date
+    for key in ("session", "wizard_version", "previous"):
+        if (value := t.text(key, None)) is not None:
+            out[key] = value
+    if (sim := t.boolean("sim", None)) is not None:
+        out["sim"] = sim
+    devices = t.optional_table("devices")
+    out["devices"] = {k: devices.text(k) for k in list(devices.raw)}  # named by the cell: camera, tracker, ...
+    devices.done()
+    steps = t.optional_table("steps")
+    out["steps"] = {}
+    for name in [k for k in CALIBRATION_STEPS if steps.has(k)]:
+        step = steps.table(name)
+        out["steps"][name] = {k: _provenance_value(step, k) for k in list(step.raw)}
+        step.done()
+    steps.done()
+    t.done()
+    return out
+
+
+def _provenance_value(t: ConfigTable, key: str) -> Any:
+    value = t.raw.get(key)
+    if isinstance(value, str | bool):
+        return t.boolean(key) if isinstance(value, bool) else t.text(key)
+    if isinstance(value, list):
+        return [float(v) for v in t.vector(key, len(value))]
+    if isinstance(value, int):
+        return t.integer(key)
+    if isinstance(value, float):
+        return t.number(key)
+    raise ConfigError(f"{t.where}.{key} = {value!r}: expected a number, string, true/false or a list of numbers")
+
+
 def _check_backends(config: CellConfig) -> None:
     """Simulated back-ends need the ``[sim]`` section they are built from."""
     if config.camera.backend == "sim" and config.sim is None:
@@ -528,4 +637,7 @@ OPTIONAL_SECTIONS: dict[str, Callable[[ConfigTable], Any]] = {
     "plc": _plc,
     "service": _service,
     "checks": _checks,
+    "cell_frame": _cell_frame,
+    "calibration_target": _calibration_target,
+    "calibration": _calibration,
 }

@@ -31,7 +31,7 @@ import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -216,12 +216,13 @@ class CycleRunner:
 
     def solve(self, measurement: Measurement) -> Solution:
         """Pose, covariance, one perspective-correction iteration; the measurement's record and captures are
-        updated to the corrected centres (so that re-solving the journal's record gives this result)."""
+        updated to the corrected centres (so that re-solving the journal's record gives this result:
+        ``monoguide journal resolve N --config CELL.toml``, which weights the views at the flange as here)."""
         start = time.monotonic()
-        record = parse_record(measurement.record)
+        record = self._parse(measurement.record)
         first = solve_ml(record.problem)  # unchecked: its centres are the ellipses', not yet corrected
         corrected = self._corrected_record(measurement, record, first.T_s1_w)
-        record = parse_record(corrected)
+        record = self._parse(corrected)
         result = solve_pose(record.problem, "ml", false_alarm_rate=self.checks.false_alarm_rate)
         elapsed = time.monotonic() - start
         measurement.record = corrected
@@ -240,6 +241,15 @@ class CycleRunner:
             T_s1_w=result.T_s1_w,
             images=measurement.images,
         )
+
+    def _parse(self, data: dict[str, Any]) -> MeasurementRecord:
+        """The record parsed; with ``[camera] T_f_c`` its view sigmas are the robot's repeatability at the
+        flange (the camera ~190 mm out moves further than about its own centre), not about the camera."""
+        record = parse_record(data)
+        T_f_c = self.config.camera.T_f_c
+        if T_f_c is None or not (record.problem.view_sigma_mm or record.problem.view_sigma_deg):
+            return record
+        return replace(record, problem=record.problem.with_flange(T_f_c))
 
     def check(self, measurement: Measurement, solution: Solution) -> None:
         """Raise the first failing check's error: the robot's pose at each capture

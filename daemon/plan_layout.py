@@ -62,6 +62,7 @@ def cell_layout(config: CellConfig, sigma_px: float | None = None) -> CellLayout
         repeatability_mm=layout.repeatability_mm,
         repeatability_deg=layout.repeatability_deg,
         point_names=config.part.point_names,
+        T_f_c=config.camera.T_f_c,  # the repeatability acts at the flange (None: about the camera's centre)
     )
     poses = tuple(compose(T_w0_cf, p.T_cf_si) for p in config.measuring_poses)
     observed = tuple((i, point) for i, p in enumerate(config.measuring_poses) for point in p.points)

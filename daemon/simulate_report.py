@@ -11,7 +11,13 @@ from typing import Any
 
 from PIL import Image, ImageDraw, ImageFont
 
-from monoguide.daemon.simulate_summary import TIMING_KEYS, format_value
+from monoguide.daemon.simulate_summary import (
+    TIMING_KEYS,
+    calibration_text,
+    format_limit,
+    format_value,
+    grasp_target_text,
+)
 
 SIZE = (900, 420)
 MARGIN = (80, 40, 30, 60)  # left, top, right, bottom
@@ -47,6 +53,8 @@ def markdown(cycles: Sequence[dict[str, Any]], summary: dict[str, Any], command:
              f"| grasp error RMS | {_f(summary['grasp_rms_mm'], 4)} mm, {_f(summary['grasp_rms_deg'], 5)} deg "
              f"({summary['grasped']} grasped parts, from the truth log) |",
              f"| grasp error max | {_f(summary['grasp_max_mm'], 4)} mm, {_f(summary['grasp_max_deg'], 5)} deg |",
+             f"| grasp target | {grasp_target_text(summary)} |",
+             *([f"| calibration | {calibration_text(summary['calibration'])} |"] if summary.get("calibration") else []),
              f"| overhead median | {_f(summary['overhead_ms_median'], 1)} ms (last frame in hand to offset "
              f"acknowledged) |",
              f"| compute median | {_f(summary['compute_ms_median'], 1)} ms (hole finding + solve + checks) |",
@@ -55,7 +63,8 @@ def markdown(cycles: Sequence[dict[str, Any]], summary: dict[str, Any], command:
              f"| offsets written on failure | {summary['offsets_written_on_failure']} |",
              f"| service memory at the end | {_f(summary['rss_mb'], 1)} MB (max {_f(summary['rss_max_mb'], 1)} MB) |",
              "", "## Targets", "", "| target | value | limit | met |", "|---|---|---|---|"]
-    lines += [f"| {t['name']} | {format_value(t['value'])} | {t['limit']} | {'yes' if t['met'] else '**no**'} |"
+    lines += [f"| {t['name']} | {format_value(t['value'])} | {format_limit(t['limit'])} | "
+              f"{'yes' if t['met'] else '**no**'} |"
               for t in summary["targets"]]
     if summary["faults"]:
         lines += ["", "## Injected faults", "", "| cycle | fault | expected | got | reported | READY after |",
@@ -80,8 +89,8 @@ def draw_grasp_error(cycles: Sequence[dict[str, Any]]) -> Image.Image:
     n = max(len(cycles), 1)
     mm = [c["grasp_error_mm"] for c in cycles]
     deg = [c["grasp_error_deg"] for c in cycles]
-    top_mm = _nice_top(max([v for v in mm if v is not None], default=0.0))
-    top_deg = _nice_top(max([v for v in deg if v is not None], default=0.0))
+    top_mm = nice_top(max([v for v in mm if v is not None], default=0.0))
+    top_deg = nice_top(max([v for v in deg if v is not None], default=0.0))
     to_px = _axes(draw, (0.5, n + 0.5), (0.0, top_mm), "cycle", "mm", integer_x=True)
     right = _right_scale(draw, top_deg, "deg")
     width = max(2.0, 0.6 * (SIZE[0] - MARGIN[0] - MARGIN[2]) / n)
@@ -103,7 +112,7 @@ def draw_time_split(summary: dict[str, Any]) -> Image.Image:
     image, draw = _canvas("time split, median over the good cycles (ms); stages overlap (hole finding runs "
                           "during motion)")
     stages = [(k, summary["timings_ms_median"].get(k)) for k in TIMING_KEYS]
-    top = _nice_top(max([v for _, v in stages if v is not None], default=0.0))
+    top = nice_top(max([v for _, v in stages if v is not None], default=0.0))
     left, upper, right, lower = MARGIN[0] + 40, MARGIN[1], SIZE[0] - MARGIN[2] - 60, SIZE[1] - MARGIN[3]
     step = (lower - upper) / len(stages)
     font = _font()
@@ -134,7 +143,7 @@ def draw_offsets(cycles: Sequence[dict[str, Any]]) -> Image.Image:
         ideal = [(c["offset_ideal"][i], c["offset_ideal"][j]) for c in cycles if c["offset_ideal"]]
         every = written + ideal or [(0.0, 0.0)]
         span = max(max(abs(a), abs(b)) for a, b in every)
-        top = _nice_top(span)
+        top = nice_top(span)
         box = (k * half + 60, 40, (k + 1) * half - 20, SIZE[1] - 50)
         to_px = _axes_in(draw, box, (-top, top), (-top, top), f"{label} ({unit})")
         for a, b in ideal:
@@ -221,7 +230,7 @@ def _cross(draw: ImageDraw.ImageDraw, at: tuple[float, float], colour: tuple[int
     draw.line([x - 5, y + 5, x + 5, y - 5], fill=colour, width=2)
 
 
-def _nice_top(value: float) -> float:
+def nice_top(value: float) -> float:
     """The smallest of 1, 2, 2.5, 5 x 10^k at or above ``value`` (1 for nothing to show)."""
     if not value or value <= 0 or not math.isfinite(value):
         return 1.0

@@ -98,6 +98,7 @@ class RunOptions:
     faults: bool = False
     host: str | None = None
     fault_names: tuple[str, ...] = ()  # "device name" of FAULT_PLAN to inject (empty: every one)
+    calibration: Path | None = None  # the service runs with this file's calibration values (the cell: config's)
 
 
 @dataclass
@@ -147,7 +148,8 @@ def run_simulation(options: RunOptions, progress: Progress | None = None) -> Run
     progress = progress or Progress()
     started = time.monotonic()
     cell = derive_config(options.config, options.work_dir, seed=options.seed, robot=options.robot,
-                         perfect_robot=options.perfect_robot, host=options.host, faults=options.faults)
+                         perfect_robot=options.perfect_robot, host=options.host, faults=options.faults,
+                         calibration=options.calibration)
     cell.state_dir.mkdir(parents=True, exist_ok=True)
     logs = options.work_dir.resolve()
     sim_log, service_log = logs / "sim-cell.log", logs / "service.log"
@@ -163,9 +165,10 @@ def run_simulation(options: RunOptions, progress: Progress | None = None) -> Run
         # --cycles N: the service stops by itself after N cycles, as a line's test run would. With --faults a
         # part may end without a cycle (or with two), so the service runs until stopped after the last part.
         until = () if options.faults else ("--cycles", str(options.cycles))
-        progress.note(f"starting the service: monoguide run {' '.join(until)} (state {cell.state_dir})")
+        calibrated = f"; calibration of {options.calibration}, config {cell.service}" if cell.calibration else ""
+        progress.note(f"starting the service: monoguide run {' '.join(until)} (state {cell.state_dir}{calibrated})")
         service = children.start("service", [
-            sys.executable, "-m", "monoguide.daemon.cli", "run", "--config", str(cell.config), "--state-dir",
+            sys.executable, "-m", "monoguide.daemon.cli", "run", "--config", str(cell.service), "--state-dir",
             str(cell.state_dir), *until], service_log)
         records, faults, samples = _play(options, cell, sim, service, lines, progress)
         service_exit = _finish_service(service, progress, by_itself=not options.faults)
@@ -234,7 +237,7 @@ _LAUNCHER = (
 )
 
 
-def _dies_with_us(argv: list[str]) -> list[str]:
+def dies_with_us(argv: list[str]) -> list[str]:
     """``argv`` started through the launcher above, so that the child ends when this process ends."""
     return [sys.executable, "-c", _LAUNCHER, str(os.getpid()), *argv]
 
@@ -266,7 +269,7 @@ class _Children:
 
     def start(self, name: str, argv: list[str], log: Path, stdin: bool = False) -> _Child:
         log_file = log.open("w")
-        process = subprocess.Popen(_dies_with_us(argv), stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
+        process = subprocess.Popen(dies_with_us(argv), stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
                                    stdout=subprocess.PIPE if stdin else log_file, stderr=log_file, text=True,
                                    start_new_session=True)  # Ctrl-C reaches us only: we stop them in order
         child = _Child(name, process, log, log_file)

@@ -54,6 +54,11 @@ PROGRAM_STATUS_TEXT = {
     PROGRAM_OFFSET_REJECTED: "offset outside the program's limits",
 }
 
+# Base-calibration poses (``monoguide calibrate``, step 3): calibration pose k (1..99) is pose number 100 + k on the
+# wire, taught in the robot program beside the measuring poses (docs/robot-interface.md)
+CALIBRATION_POSE_BASE = 100
+MAX_CALIBRATION_POSE = 99
+
 # The commands a request carries (UR: input_int_register_25, KUKA: <Request Command=...>)
 COMMAND_NONE = 0
 COMMAND_GOTO = 1
@@ -119,6 +124,12 @@ class Robot(Protocol):
     def move_to_measuring_pose(self, i: int, timeout_s: float | None = None) -> RobotStatus:
         """Request measuring pose ``i`` (0-based) and wait until the robot reports it in position; returns
         the status at that moment (its ``T_b_f`` is the actual flange pose to record with the capture)."""
+        ...
+
+    def move_to_calibration_pose(self, k: int, timeout_s: float | None = None) -> RobotStatus:
+        """Request base-calibration pose ``k`` (1..99; wire pose number ``100 + k``, taught in the robot program)
+        and wait until the robot reports it in position; returns the status then (``T_b_f``: the actual flange
+        pose). A pose the program does not have -> :class:`RobotCommandRejected` naming it."""
         ...
 
     def write_base_offset(self, D_b: np.ndarray, timeout_s: float | None = None) -> int:
@@ -225,6 +236,19 @@ class HandshakeRobot:
         check_program_status(status, self.name, f"measuring pose S{number}")
         check_at_taught_pose(status.T_b_f, self.T_b_f_taught[i] if self.T_b_f_taught else None,
                              self.pose_tolerance_mm, self.pose_tolerance_deg, self.name, f"S{number}")
+        return status
+
+    def move_to_calibration_pose(self, k: int, timeout_s: float | None = None) -> RobotStatus:
+        if not 1 <= k <= MAX_CALIBRATION_POSE:
+            raise RobotCommandRejected(f"{self.name}: calibration pose {k} does not exist (1..{MAX_CALIBRATION_POSE}, "
+                                       f"wire pose numbers {CALIBRATION_POSE_BASE + 1}..)")
+        number = CALIBRATION_POSE_BASE + k
+        name = f"calibration pose {k} (pose number {number})"
+        sequence = self._request(COMMAND_GOTO, number, np.eye(4))
+        status = self._wait_for_ack(sequence, self.move_timeout_s if timeout_s is None else timeout_s,
+                                    RobotPositionTimeout, f"in position at {name}",
+                                    lambda s: s.in_position == number)
+        check_program_status(status, self.name, name)
         return status
 
     def write_base_offset(self, D_b: np.ndarray, timeout_s: float | None = None) -> int:

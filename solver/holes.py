@@ -211,6 +211,16 @@ def measure_hole(
                        + (f"; seen {seen}" if seen else "; nothing dark of that size in the search region"))
 
 
+def circle_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two orthonormal vectors (3,) spanning the plane of a circle whose normal is ``normal`` (any length)."""
+    n = np.asarray(normal, dtype=float)
+    n = n / np.linalg.norm(n)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(n, helper)
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(n, e1)
+
+
 def perspective_correction(
     camera: CameraModel,
     T_c_w: np.ndarray,
@@ -227,12 +237,7 @@ def perspective_correction(
     as the detector's is fitted to them. Without distortion this is the centre of the projected conic.
     """
     center_w = np.asarray(center_w, dtype=float)
-    normal = np.asarray(normal_w, dtype=float)
-    normal = normal / np.linalg.norm(normal)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = np.cross(normal, helper)
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(normal, e1)
+    e1, e2 = circle_basis(normal_w)
     t = np.linspace(0.0, 2.0 * math.pi, n_points, endpoint=False)
     rim_w = center_w + radius_mm * (np.cos(t)[:, None] * e1 + np.sin(t)[:, None] * e2)
     R, tr = T_c_w[:3, :3], T_c_w[:3, 3]

@@ -26,6 +26,10 @@ class PoseProblem:
     T_s1_w0       : (4, 4) the reference part pose in SF1 (the initial value of Sec. 3.3)
     sigma_px      : standard deviation of a centre, px
     view_sigma_mm, view_sigma_deg : how far a measuring pose may be off its calibration (per axis)
+    T_f_c         : (4, 4) the camera on the robot's flange, or None. None: the view sigmas act on the camera
+                    (a small rigid motion about the camera's centre, in its axes). Given: they are the robot's
+                    repeatability at the flange (``T_b_f_actual = T_b_f N``, N per axis in flange axes), and
+                    the camera moves by ``T_c_f N T_f_c`` (a flange rotation also shifts the camera's centre)
     """
 
     camera: CameraModel
@@ -38,6 +42,7 @@ class PoseProblem:
     sigma_px: float = 0.1
     view_sigma_mm: float = 0.0
     view_sigma_deg: float = 0.0
+    T_f_c: np.ndarray | None = None
     # Derived per observation: R_si_s1 (m, 3, 3), t_si_s1 (m, 3), the observed point P (m, 3),
     # and the unit line of sight of its pixel in the camera frame (m, 3).
     R_obs: np.ndarray = field(init=False, repr=False)
@@ -63,6 +68,8 @@ class PoseProblem:
                 raise UnknownReference(f"observation names {name} {bad[0]}, but there are only {count} {name}s")
         T_si_s1 = np.stack([frames.invert(T) for T in self.T_s1_si])
         set_ = object.__setattr__
+        if self.T_f_c is not None:
+            set_(self, "T_f_c", frames.rigid_transform(np.asarray(self.T_f_c, dtype=float), "T_f_c"))
         set_(self, "R_obs", np.ascontiguousarray(T_si_s1[self.view_index, :3, :3]))
         set_(self, "t_obs", np.ascontiguousarray(T_si_s1[self.view_index, :3, 3]))
         set_(self, "P_obs", np.ascontiguousarray(self.points_w[self.point_index]))
@@ -77,11 +84,19 @@ class PoseProblem:
         M = self.P_obs @ T_s1_w[:3, :3].T + T_s1_w[:3, 3]
         return np.einsum("mij,mj->mi", self.R_obs, M) + self.t_obs
 
+    def with_flange(self, T_f_c: np.ndarray | None) -> PoseProblem:
+        """The same problem with the view sigmas acting at the flange of a camera mounted at ``T_f_c``
+        (None: about the camera's centre)."""
+        return PoseProblem(
+            self.camera, self.points_w, self.T_s1_si, self.view_index, self.point_index, self.pixels,
+            self.T_s1_w0, self.sigma_px, self.view_sigma_mm, self.view_sigma_deg, T_f_c,
+        )
+
     def with_pixels(self, pixels: np.ndarray) -> PoseProblem:
         """The same problem with other observed pixels (e.g. a noisy draw of a synthetic scene)."""
         return PoseProblem(
             self.camera, self.points_w, self.T_s1_si, self.view_index, self.point_index, pixels,
-            self.T_s1_w0, self.sigma_px, self.view_sigma_mm, self.view_sigma_deg,
+            self.T_s1_w0, self.sigma_px, self.view_sigma_mm, self.view_sigma_deg, self.T_f_c,
         )
 
 

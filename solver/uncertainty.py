@@ -27,8 +27,7 @@ def observation_covariance(problem: PoseProblem, Q: np.ndarray) -> np.ndarray:
     """Covariance Q_P (2m, 2m) of the observed pixels, px^2, given the points in their cameras Q (m, 3).
 
     A measuring pose that is off its calibration by a small rigid motion ``e = (w, d)`` of the camera
-    (``w`` rad per axis with ``view_sigma_deg``, ``d`` mm per axis with ``view_sigma_mm``) moves a point
-    in that camera by ``dQ = [Q]x w - d``.
+    (its covariance :func:`view_motion_covariance`) moves a point in that camera by ``dQ = [Q]x w - d``.
     """
     m = len(Q)
     C = np.eye(2 * m) * problem.sigma_px**2
@@ -39,14 +38,45 @@ def observation_covariance(problem: PoseProblem, Q: np.ndarray) -> np.ndarray:
     dQ[:, :, :3] = -np.cross(Q[:, None, :], np.eye(3)[None])  # [Q]x: columns Q x e_k -> -(e_k x Q)
     dQ[:, :, 3:] = -np.eye(3)
     G = Jp @ dQ  # (m, 2, 6) pixels per camera motion
-    sigma_e = np.array([math.radians(problem.view_sigma_deg)] * 3 + [problem.view_sigma_mm] * 3)
-    G = G * sigma_e
+    G = G @ view_motion_factor(problem)  # (m, 2, 6): pixels per unit of the motion's independent parts
     for view in np.unique(problem.view_index):
         rows = np.flatnonzero(problem.view_index == view)
         idx = (2 * rows[:, None] + np.arange(2)).ravel()
         Gv = G[rows].reshape(-1, 6)
         C[np.ix_(idx, idx)] += Gv @ Gv.T
     return C
+
+
+def view_motion_factor(problem: PoseProblem) -> np.ndarray:
+    """F (6, 6) with ``F F^T`` the covariance of a view's camera motion ``e = (w rad, d mm)`` (a right
+    perturbation of the camera pose, in the camera's axes).
+
+    Without ``problem.T_f_c``: ``diag(sigma)``, ``w`` and ``d`` independent per axis with ``view_sigma_deg`` /
+    ``view_sigma_mm`` (rotation about the camera's centre). With it, the robot stops at ``T_b_f N`` with N
+    of those sigmas per axis in the flange's axes; the camera stands at ``T_b_f N T_f_c``, i.e. it moves by
+    ``T_c_f N T_f_c``, so ``e = Ad(T_c_f) n``: ``w = R n_w``, ``d = R n_d + p x (R n_w)`` with
+    ``(R, p) = T_c_f``, and F = ``Ad(T_c_f) diag(sigma)``.
+    """
+    F = np.diag([math.radians(problem.view_sigma_deg)] * 3 + [problem.view_sigma_mm] * 3)
+    if problem.T_f_c is None:
+        return F
+    return adjoint(frames.invert(problem.T_f_c)) @ F
+
+
+def view_motion_covariance(problem: PoseProblem) -> np.ndarray:
+    """Covariance (6, 6) of a view's camera motion ``e = (w rad, d mm)``: see :func:`view_motion_factor`."""
+    F = view_motion_factor(problem)
+    return F @ F.T
+
+
+def adjoint(T: np.ndarray) -> np.ndarray:
+    """Adjoint (6, 6) of ``T = (R, p)`` over twists ``(w, d)``: ``T exp(n) T^-1 = exp(Ad(T) n)``."""
+    R, p = T[:3, :3], T[:3, 3]
+    A = np.zeros((6, 6))
+    A[:3, :3] = R
+    A[3:, 3:] = R
+    A[3:, :3] = frames.skew(p) @ R
+    return A
 
 
 def whitening(problem: PoseProblem, Q: np.ndarray, J: np.ndarray | None = None) -> np.ndarray:

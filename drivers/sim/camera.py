@@ -12,6 +12,12 @@ file's ``robot.truth`` and stands where that robot stands, with the part its par
 ``camera_fault`` (``{"failure", "count", "serial"}``, written on a ``camera <failure> [count]`` command to
 sim-cell) once per ``serial``. A fault already in the file when the camera opens is history, not applied.
 Without a state file (no sim-cell running) it renders its own cell as without ``follow``.
+
+Scene mode (``monoguide calibrate --sim``): when the cell has a :class:`~monoguide.drivers.sim.cell.SimScene`
+(set by the simulated operator), the camera renders what is in front of it: the circle plate held in view,
+else a calibration target lying under it (its circular marks,
+:func:`~monoguide.drivers.sim.target_renderer.render_target`), else the part's holes as always, the part where
+the scene put it (not where the robot's part supply would).
 """
 
 from __future__ import annotations
@@ -28,9 +34,11 @@ import numpy as np
 
 from monoguide.drivers.camera import CameraIdentity, CameraSettings, Frame
 from monoguide.drivers.errors import DeviceDisconnected, DeviceSettingRejected, DeviceTimeout
-from monoguide.drivers.sim.cell import SimCell
+from monoguide.drivers.sim.cell import SimCell, SimScene
 from monoguide.drivers.sim.hole_renderer import Glare, HoleSpec, RenderedView, RenderSettings, render_view
 from monoguide.drivers.sim.robot_motion import follow_truth
+from monoguide.drivers.sim.target_renderer import RenderedTarget, TargetRenderSettings, render_target
+from monoguide.solver.frames import compose, invert, make_T, transform_points
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +61,8 @@ class SimCamera:
         self.render = render
         self.rng = np.random.default_rng(cell.spec.seed + 1 if seed is None else seed)
         self.settings = CameraSettings()
-        self.last_view: RenderedView | None = None
+        self.last_view: RenderedView | RenderedTarget | None = None
+        self.target_render = TargetRenderSettings()
         self._open = False
         self._frames = 0
         self._failures: list[str] = []
@@ -149,8 +158,13 @@ class SimCamera:
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise DeviceDisconnected(f"sim camera: cannot follow the simulated robot ({truth}): {exc}") from exc
 
-    def _render(self, failure: str | None) -> RenderedView:
+    def _render(self, failure: str | None) -> RenderedView | RenderedTarget:
         cell = self.cell
+        if cell.scene is not None:
+            if cell.scene.part is not None:  # the part the operator put there, whatever the part supply says
+                cell.set_part_pose(cell.scene.part)
+            if failure in (None, "black") and (shown := self._render_scene(cell.scene, failure)) is not None:
+                return shown
         holes = [HoleSpec(center_w=p, radius_mm=cell.spec.hole_radius_mm) for p in cell.spec.points_w]
         settings = replace(self.render, exposure=self._exposure_factor(failure))
         T_c_w = cell.T_c_w_true()
@@ -166,6 +180,37 @@ class SimCamera:
                 if seen:
                     cv2.circle(view.image, (round(u), round(v)), r, grey, thickness=-1)
         return view
+
+    def _render_scene(self, scene: SimScene, failure: str | None) -> RenderedTarget | None:
+        """The plate held in view, else the nearest calibration target in view; None: neither (the part shows)."""
+        cell, cam = self.cell, self.cell.camera
+        f = self._exposure_factor(failure) / (self.render.exposure or 1.0)
+        t = self.target_render
+        settings = replace(t, board_grey=min(255.0, t.board_grey * f), mark_grey=min(255.0, t.mark_grey * f),
+                           background_grey=min(255.0, t.background_grey * f))
+        if scene.T_c_plate is not None:
+            plate = scene.plate
+            return render_target(cam, scene.T_c_plate, plate.points(), plate.radius_mm, self.rng, settings)
+        marks = cell.target_marks
+        z0 = float(marks.centers_t[0, 2])  # the renderer wants the marks on the plane z = 0 of the frame it is given
+        centers = marks.centers_t - np.array([0.0, 0.0, z0])
+        T_c_cf = invert(cell.actual_camera_pose())
+        best: tuple[float, int, np.ndarray] | None = None
+        for i, T_cf_t in scene.targets.items():
+            T_c_t = compose(T_c_cf, T_cf_t, make_T(np.eye(3), np.array([0.0, 0.0, z0])))
+            centre_c = transform_points(T_c_t, centers.mean(axis=0).reshape(1, 3))
+            if centre_c[0, 2] <= 0 or not bool(cam.in_image(cam.project(centre_c))[0]):
+                continue
+            if best is None or centre_c[0, 2] < best[0]:
+                best = (float(centre_c[0, 2]), i, T_c_t)
+        if best is None:
+            return None
+        _, i, T_c_t = best
+        outline = np.vstack([centers, cell.spec.targets[i].points_t - np.array([0.0, 0.0, z0])]
+                            if i < len(cell.spec.targets) else [centers])
+        lo, hi = outline[:, :2].min(axis=0) - 2.5 * marks.radius_mm, outline[:, :2].max(axis=0) + 2.5 * marks.radius_mm
+        board = np.array([[lo[0], lo[1], 0.0], [hi[0], lo[1], 0.0], [hi[0], hi[1], 0.0], [lo[0], hi[1], 0.0]])
+        return render_target(cam, T_c_t, centers, marks.radius_mm, self.rng, settings, board_t=board)
 
     def _exposure_factor(self, failure: str | None) -> float:
         if failure == "black":

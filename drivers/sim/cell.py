@@ -16,11 +16,17 @@ from pathlib import Path
 
 import numpy as np
 
+from monoguide.drivers.sim.target_renderer import base_calibration_poses
+from monoguide.solver.calibration.intrinsics import CirclePlate
+from monoguide.solver.calibration.target import TargetMarks, default_target_marks
 from monoguide.solver.camera import CameraModel
 from monoguide.solver.frames import compose, invert, make_T, rotvec_to_matrix, transform_points
 
 TARGETS_FORMAT = "monoguide.sim-tracker-targets/1"
 ROBOT_SPEC_FORMAT = "monoguide.sim-robot-spec/1"
+FLANGE_NEST = "TCP"  # the tracker's name for the SMR on the flange tool
+BASE_CALIBRATION_POSES = 24  # taught in the simulated robot program: wire pose numbers 101..124
+CALIBRATION_STREAM = 0x43414C42  # "CALB": the calibration poses' own random stream (seeded with [sim] seed)
 
 
 @dataclass(frozen=True)
@@ -56,6 +62,7 @@ class SimCellSpec:
     deviation_rotation_deg: tuple[float, float, float] = (0.5, 0.5, 2.0)
     repeatability_mm: float = 0.05
     repeatability_deg: float = 0.01
+    reported_repeatability_fraction: float = 1.0  # share of a stop's deviation the robot's reported pose sees
     tracker_noise_mm: float = 0.025
     exposure_us_nominal: float = 8000.0
     benchmarks_cf: dict[str, np.ndarray] = field(default_factory=dict)
@@ -64,6 +71,26 @@ class SimCellSpec:
     T_w_g: np.ndarray | None = None  # taught grasp (gripper TCP) pose on the part; None: see SimCell.T_w_g
     focus_distance_mm: float | None = None  # the lens is sharp at this depth (camera z); None: no defocus
     aperture_mm: float = 0.0  # entrance pupil diameter: defocus grows with it away from the focus plane
+    target_marks: TargetMarks | None = None  # the calibration targets' circular marks; None: the default target's
+
+
+@dataclass
+class SimScene:
+    """What the person at the cell has put where during ``monoguide calibrate`` (set by the simulated operator,
+    :mod:`monoguide.drivers.sim.calibration_scene`). A cell without a scene (``SimCell.scene`` None) is the
+    production cell: every target's nests measurable where the spec puts them, the SMR on the flange.
+
+    ``T_c_plate``: the circle plate held in front of the camera (its pose in the camera frame), or None;
+    ``targets``: the calibration targets lying in the cell (measuring pose index -> ``T_cf_t``); ``part``: the
+    part's pose ``T_cf_w`` (None: the part the robot's part supply presents); ``flange_smr``: the SMR tool is on
+    the flange; ``beam_on``: the nest the tracker's beam is locked on."""
+
+    plate: CirclePlate = field(default_factory=CirclePlate)
+    T_c_plate: np.ndarray | None = None
+    targets: dict[int, np.ndarray] = field(default_factory=dict)
+    part: np.ndarray | None = None
+    flange_smr: bool = False
+    beam_on: str | None = None
 
 
 class SimCell:
@@ -76,6 +103,7 @@ class SimCell:
         self._T_cf_w = spec.T_cf_w0.copy()
         self._T_b_f_actual: dict[int, np.ndarray] = {}
         self.current_pose = 0
+        self.scene: SimScene | None = None  # set by the simulated operator of `monoguide calibrate --sim`
         self.move_to_measuring_pose(0)
 
     @property
@@ -163,6 +191,16 @@ class SimCell:
         self._T_b_f_actual[self._check_pose(i)] = np.array(T_b_f, dtype=float)
         self.current_pose = i
 
+    def calibration_flange_poses(self, n: int = BASE_CALIBRATION_POSES) -> list[np.ndarray]:
+        """The base-calibration poses ``T_b_f`` taught in the simulated robot program (wire pose numbers
+        101..100+n): spread around the robot, tilted (seeded from the spec's seed, their own stream)."""
+        return base_calibration_poses(n, np.random.default_rng([self.spec.seed, CALIBRATION_STREAM]))
+
+    @property
+    def target_marks(self) -> TargetMarks:
+        """The circular marks of the calibration targets (each in its own frame)."""
+        return self.spec.target_marks if self.spec.target_marks is not None else default_target_marks()
+
     # --- the grasp (what the written offset is for) ---------------------------------------------
 
     @property
@@ -196,7 +234,9 @@ class SimCell:
             "seed": s.seed,
             "repeatability_mm": s.repeatability_mm,
             "repeatability_deg": s.repeatability_deg,
+            "reported_repeatability_fraction": s.reported_repeatability_fraction,
             "T_b_f_taught": [self.T_b_f_taught(i).tolist() for i in range(self.n_measuring_poses)],
+            "T_b_f_calibration": [T.tolist() for T in self.calibration_flange_poses()],
             "T_b_w0": self.T_b_w0().tolist(),
             "T_b_w": self.T_b_w_true().tolist(),
             "T_b_g0": self.T_b_g0().tolist(),
@@ -216,17 +256,21 @@ class SimCell:
     def smr_positions(self) -> dict[str, np.ndarray]:
         """Every nest the tracker can measure, in the cell frame (mm): the benchmarks, the calibration
         targets' points (``T1.1``, ...), the featured holes of the current part (``P1``, ...) and the SMR on
-        the flange tool (``TCP``) at the robot's actual pose."""
+        the flange tool (``TCP``) at the robot's actual pose. With a :class:`SimScene`, only the targets placed
+        (where they lie) and the flange SMR only when mounted."""
         s = self.spec
         out = {name: np.asarray(p, dtype=float).copy() for name, p in s.benchmarks_cf.items()}
-        for target in s.targets:
-            for k, p in enumerate(transform_points(target.T_cf_t, target.points_t)):
+        for i, target in enumerate(s.targets):
+            T_cf_t = target.T_cf_t if self.scene is None else self.scene.targets.get(i)
+            if T_cf_t is None:
+                continue
+            for k, p in enumerate(transform_points(T_cf_t, target.points_t)):
                 out[f"{target.name}.{k + 1}"] = p
         names = s.point_names or tuple(f"P{k + 1}" for k in range(len(s.points_w)))
         out.update(zip(names, self.points_cf_true(), strict=True))
-        if s.tool_smr_f is not None:
+        if s.tool_smr_f is not None and (self.scene is None or self.scene.flange_smr):
             T_cf_f = compose(s.T_cf_b, self.actual_flange_pose())
-            out["TCP"] = transform_points(T_cf_f, np.asarray(s.tool_smr_f, dtype=float).reshape(1, 3))[0]
+            out[FLANGE_NEST] = transform_points(T_cf_f, np.asarray(s.tool_smr_f, dtype=float).reshape(1, 3))[0]
         return out
 
     def tracker_targets(self) -> dict[str, np.ndarray]:
@@ -234,16 +278,30 @@ class SimCell:
         T_tracker_cf = invert(self.spec.T_cf_tracker)
         return {k: transform_points(T_tracker_cf, p.reshape(1, 3))[0] for k, p in self.smr_positions().items()}
 
-    def write_tracker_targets(self, path: str | os.PathLike[str], beam_on: str | None = None) -> Path:
-        """Write the tracker's truth for the simulated tracker process (atomically: it re-reads on change)."""
+    def write_tracker_targets(self, path: str | os.PathLike[str], beam_on: str | None = None,
+                              robot_truth: str | os.PathLike[str] | None = None) -> Path:
+        """Write the tracker's truth for the simulated tracker process (atomically: it re-reads on change).
+
+        With ``robot_truth`` (the truth file of the simulated robot controller) the flange SMR is not a fixed
+        nest: the file names that truth file, the robot base in the tracker's frame and the SMR's offset on the
+        flange, and the tracker computes the SMR where the robot stands at the moment it measures."""
         path = Path(path)
         targets = self.tracker_targets()
+        flange = None
+        if robot_truth is not None and FLANGE_NEST in targets:
+            del targets[FLANGE_NEST]
+            flange = {"nest": FLANGE_NEST, "truth": str(Path(robot_truth).resolve()),
+                      "T_tracker_b": compose(invert(self.spec.T_cf_tracker), self.spec.T_cf_b).tolist(),
+                      "smr_f": [float(v) for v in np.asarray(self.spec.tool_smr_f, dtype=float).reshape(3)]}
+        if beam_on is None and self.scene is not None:
+            beam_on = self.scene.beam_on
         beam_on = beam_on if beam_on is not None else next(iter(targets), None)
         data = {
             "format": TARGETS_FORMAT,
             "noise_mm": self.spec.tracker_noise_mm,
             "beam_on": beam_on,
             "nests": {k: [float(v) for v in p] for k, p in targets.items()},
+            **({"flange": flange} if flange is not None else {}),
         }
         tmp = path.with_name(path.name + ".tmp")
         tmp.write_text(json.dumps(data, indent=1))

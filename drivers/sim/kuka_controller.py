@@ -95,7 +95,7 @@ class KukaController:
         p = self.program
         return kuka.encode_report(kuka.KukaReport(
             mode="AUT" if p.safety == "NORMAL" else "T1", safety=p.safety, program_running=p.program_running,
-            pos=T_to_kuka_frame(p.T_b_f), ack_sequence=p.ack_sequence, in_position=p.in_position,
+            pos=T_to_kuka_frame(p.T_b_f_reported), ack_sequence=p.ack_sequence, in_position=p.in_position,
             program_status=p.program_status, ipoc=int(self.now() * 1000), identity=IDENTITY if identity else None))
 
     # --- private ------------------------------------------------------------------------------

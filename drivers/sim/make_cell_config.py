@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from monoguide.drivers.sim.hole_renderer import defocus_for_depth_of_field
+from monoguide.solver.calibration.target import default_target_marks
 from monoguide.solver.camera import PAPER_CAMERA
 from monoguide.solver.frames import compose, invert, make_T, orthonormalize, rotvec_to_matrix
 from monoguide.solver.planning import (
@@ -67,6 +68,11 @@ T_F_C_SIM = make_T(rotvec_to_matrix(np.radians([0.4, -0.3, 90.0])), np.array([62
 # The tracker stands 3.5 m from the cell origin, turned 35 deg, on a 1.2 m stand.
 T_CF_TRACKER_SIM = make_T(rotvec_to_matrix(np.radians([0.0, 0.0, 35.0])), np.array([2500.0, -2400.0, 1200.0]))
 TARGET_POINTS_T = np.array([[0.0, 0.0, 0.0], [300.0, 0.0, 0.0], [300.0, 200.0, 0.0], [0.0, 200.0, 0.0]])
+# the SMR nests that define the cell frame, nominal in CF: [cell_frame] (what calibrate measures) and
+# [sim.benchmarks] (where the simulated nests are) hold the same
+BENCHMARKS = {"B1": (0.0, 0.0, 0.0), "B2": (1500.0, 0.0, 0.0), "B3": (0.0, 1200.0, 0.0)}
+# default_target_marks(): 13 x 9 marks at 20 mm, radius 4 mm, from (30, 20) mm
+TARGET_MARKS = {"cols": 13, "rows": 9, "pitch_mm": 20.0, "radius_mm": 4.0, "origin_t": (30.0, 20.0, 0.0)}
 
 
 def layout_request() -> LayoutRequest:
@@ -81,6 +87,7 @@ def layout_request() -> LayoutRequest:
         repeatability_mm=REPEATABILITY_MM,
         repeatability_deg=REPEATABILITY_DEG,
         point_names=POINT_NAMES,
+        T_f_c=T_F_C_SIM,  # the repeatability acts at the flange, where the camera sits ([camera] T_f_c)
     )
 
 
@@ -115,8 +122,8 @@ def cell_config_toml() -> str:
         "# Measuring poses planned by `monoguide plan --layout` for [layout] over +-50 mm / +-5 deg on every axis:",
         f"# predicted sigma {s.sigma_rot_deg:.4f} deg / {s.sigma_trans_mm:.3f} mm at the grasp point "
         f"({s.sigma_origin_mm:.3f} mm at the part origin) for {SIGMA_PX:g} px,",
-        f"# {r.sigma_rot_deg:.4f} deg / {r.sigma_trans_mm:.3f} mm with the robot's repeatability; every hole "
-        f">= {plan.margin_px_min:.0f} px inside the image,",
+        f"# {r.sigma_rot_deg:.4f} deg / {r.sigma_trans_mm:.3f} mm with the robot's repeatability (at the flange); "
+        f"every hole >= {plan.margin_px_min:.0f} px inside the image,",
         f"# depth {plan.depth_mm_min:.0f}-{plan.depth_mm_max:.0f} mm. Edit the generator, not this file.",
         "",
         "[cell]",
@@ -152,6 +159,7 @@ def cell_config_toml() -> str:
             f"points = [{i}]",
             f"T_cf_si = {_matrix(T)}",
         ]
+    lines += _calibration_lines()
     lines += [
         "",
         "[tracker]",
@@ -194,10 +202,8 @@ def cell_config_toml() -> str:
         f"translation_mm = {_numbers(ENVELOPE.translation_mm)}",
         f"rotation_deg = {_numbers(ENVELOPE.rotation_deg)}",
         "",
-        "[sim.benchmarks]  # the three SMR nests that define the cell frame",
-        "B1 = [0.0, 0.0, 0.0]",
-        "B2 = [1500.0, 0.0, 0.0]",
-        "B3 = [0.0, 1200.0, 0.0]",
+        "[sim.benchmarks]  # the three SMR nests that define the cell frame (where they truly are: [cell_frame])",
+        *(f"{name} = {_numbers(xyz)}" for name, xyz in BENCHMARKS.items()),
     ]
     for i, T in enumerate(m["T_cf_t"]):
         lines += [
@@ -231,6 +237,35 @@ def _exact(T: np.ndarray) -> np.ndarray:
 
 def _numbers(values) -> str:
     return "[" + ", ".join(f"{float(v):.1f}" for v in values) + "]"
+
+
+def _calibration_lines() -> list[str]:
+    """[cell_frame] and [calibration_target]: what `monoguide calibrate` measures the cell with."""
+    m = TARGET_MARKS
+    marks = default_target_marks()
+    ox, oy, oz = m["origin_t"]
+    pitch = m["pitch_mm"]
+    expected = [[ox + c * pitch, oy + r * pitch, oz] for r in range(m["rows"]) for c in range(m["cols"])]
+    assert np.allclose(marks.centers_t, expected) and marks.radius_mm == m["radius_mm"], "default_target_marks changed"
+    benchmarks = ", ".join(f"{name} = {_numbers(xyz)}" for name, xyz in BENCHMARKS.items())
+    return [
+        "",
+        "[cell_frame]  # the benchmark SMR nests that define CF, nominal (monoguide calibrate; docs/calibration.md)",
+        'method = "best-fit"',
+        f"benchmarks = {{ {benchmarks} }}",
+        "",
+        "[calibration_target]  # the simulated targets (SMR nests at the corners; default_target_marks())",
+        f"nests_t = {_numbers_rows(TARGET_POINTS_T)}",
+        f"marks_cols = {m['cols']}",
+        f"marks_rows = {m['rows']}",
+        f"marks_pitch_mm = {m['pitch_mm']:.1f}",
+        f"marks_radius_mm = {m['radius_mm']:.1f}",
+        f"marks_origin_t = {_numbers(m['origin_t'])}",
+    ]
+
+
+def _numbers_rows(a: np.ndarray) -> str:
+    return "[" + ", ".join(_numbers(row) for row in a) + "]"
 
 
 def _layout_lines() -> list[str]:

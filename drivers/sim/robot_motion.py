@@ -2,7 +2,8 @@
 
 It plays the part of the robot program of ``config/ur/`` and ``config/kuka/``: on a request to go to
 measuring pose number k it moves there in ``move_time_s`` and stops at the taught flange pose plus the
-cell's repeatability noise, then reports k in position and acknowledges the request's sequence number; on
+cell's repeatability noise, then reports k in position and acknowledges the request's sequence number
+(numbers 101.. are the base-calibration poses, the spec's ``T_b_f_calibration``, alike); on
 an offset ``D_b`` it applies it to the taught grasp pose (``pose_trans(D_b, grasp)``), acknowledges, and
 scores it: the **grasp error**, that grasp pose against the ideal one ``T_b_w · T_b_w0⁻¹ · T_b_g0`` which
 fits the true part exactly, logged with the part and the sequence number.
@@ -10,6 +11,12 @@ fits the true part exactly, logged with the part and the sequence number.
 The truth comes from the robot spec file that :meth:`SimCell.write_robot_spec` writes (re-read when it
 changes: a new part); what the robot did goes to a truth file (:func:`read_truth`) that the in-process
 simulated camera follows (:meth:`SimCell.set_actual_flange_pose`) and tests score against.
+
+What the controller reports is not all of the truth: its flange pose (``T_b_f_reported``, on the wire) sees
+only the share ``reported_repeatability_fraction`` of each stop's deviation from the taught pose (the spec's
+key; 1 when absent: the report is the true stop), as a real robot's encoders miss backlash, flex and heat. The
+truth file keeps both: ``T_b_f`` and ``stops`` (true: where the camera stands), ``T_b_f_reported`` and
+``stops_reported``.
 
 Failure modes (:data:`FAULT_MODES`), set at start (``--fault``) or at run time (``--commands``: one fault
 per line on standard input, ``none`` clears it; :meth:`SimRobotProgram.set_fault`), each applied from the
@@ -48,6 +55,7 @@ from pathlib import Path
 import numpy as np
 
 from monoguide.drivers.robot import (
+    CALIBRATION_POSE_BASE,
     COMMAND_GOTO,
     COMMAND_NONE,
     COMMAND_OFFSET,
@@ -86,6 +94,8 @@ class RobotSpec:
     T_b_w0: np.ndarray
     T_b_w: np.ndarray
     T_b_g0: np.ndarray
+    T_b_f_calibration: tuple[np.ndarray, ...] = ()  # base-calibration poses 1..N: wire pose numbers 101..100+N
+    reported_fraction: float = 1.0  # share of each stop's deviation the controller's reported pose sees
 
 
 @dataclass
@@ -117,6 +127,8 @@ class SimRobotProgram:
     stops: dict[int, np.ndarray] = field(default_factory=dict)
     supply: PartSupply | None = None  # presents a new part at each request of measuring pose 1
     _move: tuple[float, np.ndarray, np.ndarray, int, int] | None = None  # start, from, to, number, seq
+    stops_reported: dict[int, np.ndarray] = field(default_factory=dict)  # what the controller reported there
+    _unseen: np.ndarray = field(default_factory=lambda: np.eye(4))  # reported = true · _unseen (this stop's)
 
     def __post_init__(self) -> None:
         if self.fault not in FAULT_MODES:
@@ -132,6 +144,12 @@ class SimRobotProgram:
             self.safety = "NORMAL"
         log.info("fault %s (was %s)", fault, self.fault)
         self.fault = fault
+
+    @property
+    def T_b_f_reported(self) -> np.ndarray:
+        """The flange pose the controller reports (its encoders): the true one less the part of the stop's
+        deviation from the taught pose that the encoders do not see (``reported_fraction``)."""
+        return compose(self.T_b_f, self._unseen)
 
     @property
     def program_running(self) -> bool:
@@ -160,7 +178,8 @@ class SimRobotProgram:
             self._move = None
             return True
         if command == COMMAND_GOTO:
-            if not 1 <= pose_number <= len(self.spec.T_b_f_taught):
+            if not (1 <= pose_number <= len(self.spec.T_b_f_taught)
+                    or CALIBRATION_POSE_BASE < pose_number <= CALIBRATION_POSE_BASE + len(self.spec.T_b_f_calibration)):
                 self._answer(sequence, PROGRAM_BAD_POSE)
                 return True
             if pose_number == 1 and self.supply is not None:  # a cycle starts: the next part arrives
@@ -187,6 +206,7 @@ class SimRobotProgram:
             self._move = None
             self.in_position = number
             self.stops[number] = T_to.copy()
+            self.stops_reported[number] = compose(T_to, self._unseen)
             self._answer(sequence, PROGRAM_OK)
             log.info("in position at S%d (request %d)", number, sequence)
 
@@ -205,6 +225,8 @@ class SimRobotProgram:
             "T_b_f": self.T_b_f.tolist(),
             **({"T_cf_w": self.supply.T_cf_w.tolist()} if self.supply is not None else {}),
             "stops": {str(k): T.tolist() for k, T in self.stops.items()},
+            "T_b_f_reported": self.T_b_f_reported.tolist(),
+            "stops_reported": {str(k): T.tolist() for k, T in self.stops_reported.items()},
             "offsets": [
                 {"sequence": o.sequence, "part": o.part, "received": list(o.received), "D_b": o.D_b.tolist(),
                  "grasp_error_mm": o.grasp_error_mm, "grasp_error_deg": o.grasp_error_deg}
@@ -216,8 +238,14 @@ class SimRobotProgram:
 
     def _stop_at(self, number: int) -> np.ndarray:
         s = self.spec
-        noise = make_T(rotvec_to_matrix(self.rng.normal(0.0, math.radians(s.repeatability_deg), 3)),
-                       self.rng.normal(0.0, s.repeatability_mm, 3))
+        rotvec = self.rng.normal(0.0, math.radians(s.repeatability_deg), 3)
+        shift = self.rng.normal(0.0, s.repeatability_mm, 3)
+        noise = make_T(rotvec_to_matrix(rotvec), shift)
+        # the controller's report sees the share reported_fraction of this deviation (backlash, flex, heat: not all)
+        seen = make_T(rotvec_to_matrix(s.reported_fraction * rotvec), s.reported_fraction * shift)
+        self._unseen = compose(invert(noise), seen)
+        if number > CALIBRATION_POSE_BASE:  # a base-calibration pose (monoguide calibrate)
+            return compose(s.T_b_f_calibration[number - CALIBRATION_POSE_BASE - 1], noise)
         return compose(s.T_b_f_taught[number - 1], noise)
 
     def _apply_offset(self, sequence: int, D_b: np.ndarray, received: tuple[float, ...]) -> None:
@@ -318,7 +346,9 @@ def load_robot_spec(path: Path) -> RobotSpec:
     m = {k: np.asarray(data[k], dtype=float) for k in ("T_b_w0", "T_b_w", "T_b_g0")}
     return RobotSpec(int(data["part"]), int(data["seed"]), float(data["repeatability_mm"]),
                      float(data["repeatability_deg"]),
-                     tuple(np.asarray(T, dtype=float) for T in data["T_b_f_taught"]), **m)
+                     tuple(np.asarray(T, dtype=float) for T in data["T_b_f_taught"]), **m,
+                     T_b_f_calibration=tuple(np.asarray(T, dtype=float) for T in data.get("T_b_f_calibration", ())),
+                     reported_fraction=float(data.get("reported_repeatability_fraction", 1.0)))
 
 
 def write_truth(path: Path, truth: dict[str, object]) -> None:
@@ -345,7 +375,8 @@ def follow_truth(cell: SimCell, path: Path) -> int:
     stops = {int(k): np.asarray(T, dtype=float) for k, T in truth["stops"].items()}  # type: ignore[union-attr]
     current = int(truth["in_position"])  # type: ignore[call-overload]
     for number in sorted(stops, key=lambda k: k == current):  # the current stop last: it sets current_pose
-        cell.set_actual_flange_pose(number - 1, stops[number])
+        if 1 <= number <= cell.n_measuring_poses:  # not the base-calibration poses (101..): no camera pose
+            cell.set_actual_flange_pose(number - 1, stops[number])
     return current
 
 

@@ -4,7 +4,10 @@ Run as ``python -m monoguide.drivers.sim.tracker --targets TARGETS.json``. It op
 ``LISTEN tracker <slave path>`` on stdout and answers requests until SIGTERM/SIGINT or until its parent
 goes away. The targets file (written by :meth:`monoguide.drivers.sim.cell.SimCell.write_tracker_targets`)
 holds the true SMR centres in the tracker's frame; it is re-read when it changes, so the cell's truth
-can move (a new part, the robot at another pose). Each measurement adds the tracker's noise.
+can move (a new part, the robot at another pose). Each measurement adds the tracker's noise. When the
+targets file has a ``flange`` entry (the SMR on the robot's flange tool: its nest name, the simulated robot
+controller's truth file, the robot base in the tracker's frame ``T_tracker_b`` and the SMR's offset ``smr_f``
+on the flange) that nest is where the robot stands at the moment of the measurement.
 
 Faults on command (simulator-only request ``SIM:FAULT <mode> [<count>] [<delay_s>]``, or ``--fault``):
 ``NOREPLY`` (silence), ``GARBAGE`` (a line that is not the protocol), ``BEAM`` (E200 beam broken),
@@ -74,6 +77,22 @@ class TrackerState:
     fault_count: int = 0
     late_delay_s: float = 3.0
     scheduled: list[tuple[float, int, bytes]] = field(default_factory=list)
+    flange: FlangeSmr | None = None
+
+
+@dataclass(frozen=True)
+class FlangeSmr:
+    """The SMR on the robot's flange: nest ``nest`` is ``T_tracker_b · T_b_f · smr_f`` with the flange pose
+    ``T_b_f`` read from the simulated controller's truth file ``truth`` when measured."""
+
+    nest: str
+    truth: Path
+    T_tracker_b: np.ndarray
+    smr_f: np.ndarray
+
+    def position(self) -> np.ndarray:
+        T_b_f = np.asarray(json.loads(self.truth.read_text())["T_b_f"], dtype=float)
+        return (self.T_tracker_b @ T_b_f @ np.append(self.smr_f, 1.0))[:3]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -86,7 +105,8 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="sim-tracker: %(message)s")
 
     nests, noise_mm, beam_on = load_targets(args.targets)
-    state = TrackerState(nests, noise_mm, np.random.default_rng(args.seed), beam_on, fault=args.fault)
+    state = TrackerState(nests, noise_mm, np.random.default_rng(args.seed), beam_on, fault=args.fault,
+                         flange=load_flange(args.targets))
     master, slave = os.openpty()
     tty.setraw(slave)  # no echo, no line editing: bytes pass as sent
     # a client that stops reading must not block the simulator (and its SIGTERM) in os.write
@@ -105,15 +125,10 @@ def serve(master: int, state: TrackerState, targets_path: Path, stop: list[bool]
     """Answer requests on the pty ``master`` until ``stop[0]`` or until the ``parent`` process (default: the
     current parent) ends."""
     parent = os.getppid() if parent is None else parent
-    mtime = _mtime(targets_path)
+    seen = [_mtime(targets_path)]
     buffer = bytearray()
     while not stop[0] and os.getppid() == parent:
-        if (new_mtime := _mtime(targets_path)) != mtime:
-            mtime = new_mtime
-            try:
-                state.nests, state.noise_mm, state.beam_on = load_targets(targets_path)
-            except (OSError, ValueError) as exc:
-                log.warning("keeping old targets, cannot re-read %s: %s", targets_path, exc)
+        _reload_if_changed(state, targets_path, seen)
         wait = 0.2 if not state.scheduled else max(0.0, min(0.2, state.scheduled[0][0] - time.monotonic()))
         try:
             readable, _, _ = select.select([master], [], [], wait)
@@ -124,6 +139,8 @@ def serve(master: int, state: TrackerState, targets_path: Path, stop: list[bool]
                 buffer.extend(os.read(master, 4096))
             except OSError:  # no client has the slave open: nothing to read
                 time.sleep(0.05)
+        if b"\n" in buffer:  # the truth as it is now: a file rewritten just before this request counts
+            _reload_if_changed(state, targets_path, seen)
         while (end := buffer.find(b"\n")) >= 0:
             line = bytes(buffer[:end]).rstrip(b"\r")
             del buffer[: end + 1]
@@ -174,6 +191,15 @@ def load_targets(path: Path) -> tuple[dict[str, np.ndarray], float, str | None]:
     return nests, float(data["noise_mm"]), data.get("beam_on")
 
 
+def load_flange(path: Path) -> FlangeSmr | None:
+    """The targets file's ``flange`` entry (the SMR on the flange follows the robot), None when it has none."""
+    flange = json.loads(Path(path).read_text()).get("flange")
+    if not flange:
+        return None
+    return FlangeSmr(str(flange["nest"]), Path(flange["truth"]), np.asarray(flange["T_tracker_b"], dtype=float),
+                     np.asarray(flange["smr_f"], dtype=float).reshape(3))
+
+
 # --- private -----------------------------------------------------------------------------------
 
 
@@ -189,7 +215,7 @@ def _execute(state: TrackerState, request: Request) -> bytes:
         state.unit = args[0].upper()
         return encode_ok(tag, state.unit)
     if command == CMD_LIST_NESTS:
-        return encode_ok(tag, ",".join(state.nests))
+        return encode_ok(tag, ",".join([*state.nests, *([state.flange.nest] if state.flange else [])]))
     if command == CMD_MEASURE_POINT:
         return _measure(state, tag, args)
     return encode_error(tag, E_UNKNOWN_COMMAND, f"unknown command {command}")
@@ -201,13 +227,20 @@ def _measure(state: TrackerState, tag: int, args: tuple[str, ...]) -> bytes:
     nest = args[0] if args else state.beam_on
     if nest is None:
         return encode_error(tag, E_BEAM_BROKEN, "beam broken: no target locked")
-    if nest not in state.nests:
+    if state.flange is not None and nest == state.flange.nest:
+        try:
+            true_point = state.flange.position()
+        except (OSError, ValueError, KeyError) as exc:  # no robot truth (yet): nothing on the flange to lock on
+            return encode_error(tag, E_BEAM_BROKEN, f"beam broken: flange SMR not found ({exc})"[:80])
+    elif nest not in state.nests:
         return encode_error(tag, E_UNKNOWN_NEST, f"unknown nest {nest}")
+    else:
+        true_point = state.nests[nest]
     state.beam_on = nest
     # The spec's uncertainty is the 3-D RMS error of a point: per axis noise_mm / sqrt(3) for the mean of
     # SAMPLES_PER_POINT samples; the reported RMS is the samples' scatter about their mean.
     sigma_sample = state.noise_mm / math.sqrt(3.0) * math.sqrt(SAMPLES_PER_POINT)
-    samples = state.nests[nest] + state.rng.normal(0.0, sigma_sample, size=(SAMPLES_PER_POINT, 3))
+    samples = true_point + state.rng.normal(0.0, sigma_sample, size=(SAMPLES_PER_POINT, 3))
     point = samples.mean(axis=0)
     rms = float(np.sqrt(np.mean(np.sum((samples - point) ** 2, axis=1))))
     state.measurement_number += 1
@@ -237,11 +270,24 @@ def _schedule(state: TrackerState, reply: tuple[float, bytes] | None) -> None:
         heapq.heappush(state.scheduled, (time.monotonic() + reply[0], _sequence[0], reply[1]))
 
 
-def _mtime(path: Path) -> float:
+def _reload_if_changed(state: TrackerState, targets_path: Path, seen: list[tuple[int, int, int]]) -> None:
+    if (now := _mtime(targets_path)) == seen[0]:
+        return
+    seen[0] = now
     try:
-        return path.stat().st_mtime_ns
+        state.nests, state.noise_mm, state.beam_on = load_targets(targets_path)
+        state.flange = load_flange(targets_path)
+    except (OSError, ValueError) as exc:
+        log.warning("keeping old targets, cannot re-read %s: %s", targets_path, exc)
+
+
+def _mtime(path: Path) -> tuple[int, int, int]:
+    """What changes when the file is rewritten (atomically: a new inode), even within one clock tick."""
+    try:
+        st = path.stat()
     except OSError:
-        return -1.0
+        return (-1, -1, -1)
+    return (st.st_ino, st.st_mtime_ns, st.st_size)
 
 
 def _install_stop_handlers() -> list[bool]:

@@ -142,7 +142,7 @@ class UrController:
     def outputs(self) -> dict[str, object]:
         p = self.program
         safety = SAFETY_NORMAL if p.safety == "NORMAL" else SAFETY_PROTECTIVE_STOP
-        pose = tuple(float(v) for v in T_to_ur_pose(p.T_b_f))
+        pose = tuple(float(v) for v in T_to_ur_pose(p.T_b_f_reported))
         values: dict[str, object] = {
             "timestamp": self.now(), "actual_TCP_pose": pose, "target_TCP_pose": pose,
             "actual_TCP_speed": (0.0,) * 6, "actual_q": (0.0,) * 6, "target_q": (0.0,) * 6,

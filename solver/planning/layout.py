@@ -191,7 +191,7 @@ class _Planner:
         r = self.request
         try:
             cov = layout_covariance(self.camera, self.points, poses, r.sigma_px, r.repeatability_mm,
-                                    r.repeatability_deg)
+                                    r.repeatability_deg, r.T_f_c)
         except SolveFailed:
             return math.inf
         s = pose_sigmas(cov, frames.invert(poses[0]), r.grasp_point())

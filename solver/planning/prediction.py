@@ -47,12 +47,14 @@ def layout_covariance(
     sigma_px: float = 1.0,
     view_sigma_mm: float = 0.0,
     view_sigma_deg: float = 0.0,
+    T_f_c: np.ndarray | None = None,
 ) -> np.ndarray:
     """Predicted covariance (6, 6) of ``T_s1_w`` over (w rad, dt mm) for a layout where view i sees point i
-    from ``T_w_si[i]`` (the part at its reference pose)."""
+    from ``T_w_si[i]`` (the part at its reference pose). ``T_f_c``: the camera on the flange (the view
+    sigmas are then the robot's repeatability at the flange; see :class:`~monoguide.solver.problem.PoseProblem`)."""
     points_w = np.asarray(points_w, dtype=float).reshape(-1, 3)
     observed = [(i, i) for i in range(len(points_w))]
-    return observed_covariance(camera, points_w, T_w_si, observed, sigma_px, view_sigma_mm, view_sigma_deg)
+    return observed_covariance(camera, points_w, T_w_si, observed, sigma_px, view_sigma_mm, view_sigma_deg, T_f_c)
 
 
 def observed_covariance(
@@ -63,9 +65,11 @@ def observed_covariance(
     sigma_px: float = 1.0,
     view_sigma_mm: float = 0.0,
     view_sigma_deg: float = 0.0,
+    T_f_c: np.ndarray | None = None,
 ) -> np.ndarray:
     """Predicted covariance (6, 6) of ``T_s1_w`` for any layout: ``observed`` lists the (view, point)
-    pairs, ``T_w_si`` (k, 4, 4) the camera poses in the reference part's frame.
+    pairs, ``T_w_si`` (k, 4, 4) the camera poses in the reference part's frame, ``T_f_c`` the camera on the
+    flange (None: the view sigmas move the camera about its centre).
 
     Raises :class:`~monoguide.solver.errors.DegenerateGeometry` when the layout leaves a direction of the
     pose unobservable, :class:`~monoguide.solver.errors.PointBehindCamera` when a point is behind its camera.
@@ -80,7 +84,7 @@ def observed_covariance(
         point_c = frames.transform_points(frames.invert(T_w_si[view]), points_w[point : point + 1])
         pixels[row] = camera.project(point_c)[0]
     problem = PoseProblem(
-        camera, points_w, T_s1_si, views, points, pixels, T_s1_w0, sigma_px, view_sigma_mm, view_sigma_deg
+        camera, points_w, T_s1_si, views, points, pixels, T_s1_w0, sigma_px, view_sigma_mm, view_sigma_deg, T_f_c
     )
     return predicted_covariance(problem, T_s1_w0)
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from monoguide.solver import frames
 from monoguide.solver.camera import CameraModel
-from monoguide.solver.errors import SolveFailed
+from monoguide.solver.errors import NotARotation, SolveFailed
 from monoguide.solver.planning.envelope import DeviationEnvelope, envelope_deviations, hole_in_view
 from monoguide.solver.planning.errors import LayoutRequestInvalid, LayoutTooFewPoints
 from monoguide.solver.planning.prediction import PoseSigmas, observed_covariance, pose_sigmas
@@ -59,6 +59,8 @@ class LayoutRequest:
     points_w : (n, 3) featured hole centres in the part frame, mm; normals_w : (n, 3) their surface normals
     (None: the part's z axis); grasp_point_w : (3,) (None: the holes' centroid); sigma_px: centre noise;
     repeatability_mm / _deg: the robot's pose repeatability per axis at a measuring pose;
+    T_f_c : (4, 4) the camera on the flange: the repeatability acts at the flange (None: about the camera's
+    centre, the older and smaller prediction);
     interior_samples, seed: the seeded sample of the envelope's interior checked beside its 64 corners.
     """
 
@@ -74,6 +76,7 @@ class LayoutRequest:
     interior_samples: int = 192
     seed: int = 0
     point_names: tuple[str, ...] = ()
+    T_f_c: np.ndarray | None = None
 
     def names(self) -> tuple[str, ...]:
         n = len(np.asarray(self.points_w).reshape(-1, 3))
@@ -148,6 +151,11 @@ def validate_request(request: LayoutRequest) -> None:
     _finite_positive("sigma_px", request.sigma_px)
     _finite_nonnegative("repeatability_mm", request.repeatability_mm)
     _finite_nonnegative("repeatability_deg", request.repeatability_deg)
+    if request.T_f_c is not None:
+        try:
+            frames.rigid_transform(request.T_f_c, "T_f_c")
+        except NotARotation as error:
+            raise LayoutRequestInvalid(error.message) from error
     _finite_nonnegative("margin_px", c.margin_px)
     _range("standoff_mm", c.standoff_mm)
     _range("depth_of_field_mm", c.depth_of_field_mm)
@@ -227,7 +235,7 @@ def _predict(request: LayoutRequest, T_w0_si, observed) -> tuple[PoseSigmas | No
     try:
         plain = observed_covariance(request.camera, points, T_w0_si, observed, request.sigma_px)
         with_rep = observed_covariance(request.camera, points, T_w0_si, observed, request.sigma_px,
-                                       request.repeatability_mm, request.repeatability_deg)
+                                       request.repeatability_mm, request.repeatability_deg, request.T_f_c)
     except SolveFailed as error:
         return None, None, f"{error.code}: {error.message}"
     return pose_sigmas(plain, T_s1_w0, grasp), pose_sigmas(with_rep, T_s1_w0, grasp), None

@@ -3,6 +3,7 @@ addresses, the process started until it says where its state file is, and stoppe
 
 from __future__ import annotations
 
+import select
 import signal
 import subprocess
 import sys
@@ -62,6 +63,20 @@ def start_sim_cell(config: Path, *options: str, stdin: int | None = subprocess.D
     finally:
         watchdog.cancel()
     return process, lines
+
+
+def start_sim_tracker(targets_file: Path, seed: int = 7) -> tuple[subprocess.Popen[str], str]:
+    """Start ``python -m monoguide.drivers.sim.tracker`` and read the pty path it listens on."""
+    process = subprocess.Popen([sys.executable, "-m", "monoguide.drivers.sim.tracker", "--targets",
+                                str(targets_file), "--seed", str(seed)], stdout=subprocess.PIPE, text=True)
+    assert process.stdout is not None
+    ready, _, _ = select.select([process.stdout], [], [], 15.0)
+    words = process.stdout.readline().split() if ready else []
+    if words[:2] != ["LISTEN", "tracker"]:
+        process.kill()
+        process.wait(5)
+        pytest.fail(f"simulated tracker did not start: {words}")
+    return process, words[2]
 
 
 def stop(process: subprocess.Popen[str], timeout_s: float = 10.0) -> int:

@@ -13,6 +13,7 @@ import pytest
 from typer.testing import CliRunner
 
 from monoguide.daemon.cli import app
+from monoguide.daemon.config import load_cell_config
 from monoguide.daemon.journal import JOURNAL_FILE, CycleEntry, Journal
 from monoguide.daemon.state_dir import DEFAULT_STATE_DIR, state_dir
 from monoguide.drivers.errors import DeviceTimeout
@@ -249,3 +250,32 @@ def test_an_empty_journal_lists_nothing(tmp_path: Path) -> None:
     run = _run("journal", "export", "--state-dir", str(tmp_path))
     assert run.exit_code == 0 and run.stdout == "" and "exported 0 records" in run.stderr
     assert time.monotonic() - started < 5
+
+
+def test_resolve_with_the_cells_config_weights_the_views_at_the_flange_as_the_cycle_did(tmp_path: Path) -> None:
+    """A record with the robot's repeatability: the cycle solved it with the camera's mounting on the flange
+    (``[camera] T_f_c``), which the record does not carry; ``--config`` gives it back, without it today's
+    solve weighs the views about the camera's centre and lands elsewhere."""
+    config = Path(__file__).parents[2] / "config" / "sim-cell.toml"
+    T_f_c = load_cell_config(config).camera.T_f_c
+    rng = np.random.default_rng(77)
+    T_true = deviated_part(CELL, rng, 2.0, 20.0)
+    pixels = CELL.project(T_true) + rng.normal(0, 0.1, (len(CELL.observed), 2))
+    views = np.array([v for v, _ in CELL.observed])
+    pixels[views == 1] += rng.normal(0, 1.5, 2)  # one view stopped a little off: its pixels move together
+    record = measurement_record(CELL, pixels, 0.1, "flange", T_B_S1, T_true)
+    record["view_sigma"] = {"mm": 0.05, "deg": 0.01}
+    parsed = parse_record(record)
+    flange = dataclasses.replace(parsed, problem=parsed.problem.with_flange(T_f_c))
+    stored = result_to_dict(flange, solve_pose(flange.problem), 10.0)
+    with Journal(tmp_path) as journal:
+        journal.commit_cycle(CycleEntry(started_at=STARTED, finished_at=STARTED + 4.0, job=1, part_tag=1,
+                                        timings_s={}, poses_at_capture=POSES, image_paths=[], record=record,
+                                        result=stored))
+    run = _run("journal", "resolve", "1", "--state-dir", str(tmp_path), "--config", str(config), "--json")
+    assert run.exit_code == 0, run.output
+    (outcome,) = _json_lines(run.stdout)
+    assert outcome["difference"]["grasp_point_mm"] < 1e-6
+    run = _run("journal", "resolve", "1", "--state-dir", str(tmp_path), "--json")
+    (outcome,) = _json_lines(run.stdout)
+    assert outcome["difference"]["grasp_point_mm"] > 1e-4  # the other weighting: not the cycle's answer
