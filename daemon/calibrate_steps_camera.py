@@ -204,7 +204,11 @@ def run_verify(rig: CalibrationRig, earlier: dict[str, dict[str, Any]]) -> dict[
 
 def run_accuracy(rig: CalibrationRig, earlier: dict[str, dict[str, Any]]) -> dict[str, Any]:
     """Table 3: per part pose k the displacement from the reference as the tracker (``inv(T_cf_w0) T_cf_w_k``)
-    and the camera (``inv(T_s1_w0) T_s1_w_k``) measure it; RMS, verdict against the tolerances."""
+    and the camera (``inv(T_s1_w0) T_s1_w_k``) measure it; RMS, verdict against the tolerances.
+
+    Table 3's x y z (and dT) are the displacement of the part frame's origin, as the paper prints them; the
+    verdict takes dT where the cell's tolerance applies, at the grasp point (the featured holes' centroid, the
+    cycle's grasp point), 1-2 m from the origin of a large part (``dT_grasp_mm``), and dR as it is."""
     T_cf_tracker = _matrix(earlier, "accuracy", "cell", "T_cf_tracker")
     T_cf_w0 = _matrix(earlier, "accuracy", "part", "T_cf_w0")
     T_s1_w0 = _matrix(earlier, "accuracy", "verify", "T_s1_w0")
@@ -220,14 +224,22 @@ def run_accuracy(rig: CalibrationRig, earlier: dict[str, dict[str, Any]]) -> dic
         lt.append(compose(invert(T_cf_w0), fit.T))
         mono.append(compose(invert(T_s1_w0), T_s1_w))
         rig.progress(f"accuracy: part pose {k} of {opts.accuracy_poses}: tracker fit RMS {fit.rms_mm:.4f} mm")
-    table = table3(lt, mono, tolerance_deg=opts.tolerance_deg, tolerance_mm=opts.tolerance_mm)
+    table = table3(lt, mono)
+    grasp_w = np.append(config.part.points_w.mean(axis=0), 1.0)
+    at_grasp = [float(np.linalg.norm((m @ grasp_w - t @ grasp_w)[:3])) for t, m in zip(lt, mono, strict=True)]
+    passed = all(r.dR_deg <= opts.tolerance_deg and g <= opts.tolerance_mm
+                 for r, g in zip(table.rows, at_grasp, strict=True))
     rows = [{"lt": r.lt.tolist(), "mono": r.mono.tolist(), "delta": r.delta.tolist(), "dR_deg": r.dR_deg,
-             "dT_mm": r.dT_mm} for r in table.rows]
-    rig.progress(f"accuracy: RMS dR {table.rms_dR_deg:.5f} deg, dT {table.rms_dT_mm:.4f} mm over {len(rows)} poses: "
-                 f"{'PASSED' if table.passed else 'FAILED'} (tolerance {opts.tolerance_mm:g} mm / "
-                 f"{opts.tolerance_deg:g} deg per pose)")
-    return {"rows": rows, "rms_dR_deg": table.rms_dR_deg, "rms_dT_mm": table.rms_dT_mm, "passed": bool(table.passed),
-            "tolerance_mm": opts.tolerance_mm, "tolerance_deg": opts.tolerance_deg, "markdown": table.markdown()}
+             "dT_mm": r.dT_mm, "dT_grasp_mm": g} for r, g in zip(table.rows, at_grasp, strict=True)]
+    rms_grasp = float(np.sqrt(np.mean(np.square(at_grasp)))) if at_grasp else float("nan")
+    rig.progress(f"accuracy: RMS dR {table.rms_dR_deg:.5f} deg, dT {table.rms_dT_mm:.4f} mm at the part origin, "
+                 f"{rms_grasp:.4f} mm at the grasp point over {len(rows)} poses: {'PASSED' if passed else 'FAILED'} "
+                 f"(tolerance {opts.tolerance_mm:g} mm at the grasp point / {opts.tolerance_deg:g} deg per pose)")
+    markdown = table.markdown() + "\n\ndT at the grasp point (the holes' centroid), per pose: " + ", ".join(
+        f"{g:.4f}" for g in at_grasp) + f" mm; RMS {rms_grasp:.4f} mm."
+    return {"rows": rows, "rms_dR_deg": table.rms_dR_deg, "rms_dT_mm": table.rms_dT_mm,
+            "rms_dT_grasp_mm": rms_grasp, "passed": passed, "tolerance_mm": opts.tolerance_mm,
+            "tolerance_deg": opts.tolerance_deg, "markdown": markdown}
 
 
 # --- the calibration as the cycle uses it -----------------------------------------------------------

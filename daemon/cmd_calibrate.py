@@ -78,6 +78,8 @@ def calibrate(
     cell_method: Annotated[
         str | None, typer.Option(help="cell frame: best-fit or 3-2-1 [the config's cell_frame method]")
     ] = None,
+    accept: Annotated[bool, typer.Option("--accept", help="write the calibration even though the accuracy "
+                                         "validation failed (its verdict stays in the provenance)")] = False,
 ) -> None:
     """Calibrate the cell: intrinsics, cell frame, robot base, part, measuring poses, verification, accuracy."""
     cli = {"plate_images": plate_images, "base_poses": base_poses, "placements": placements, "visits": visits,
@@ -114,7 +116,7 @@ def calibrate(
         _err(f"all {len(STEPS)} steps are done ({session.path}); --from STEP or --restart to redo")
     calibrated = Path(session.data.get("calibrated_config") or config_path)
     if (code == EXIT_OK and session.next_step() is None and "calibration_file" not in session.data
-            and not write_results(session, calibrated, work, sim)):
+            and not write_results(session, calibrated, work, sim, accept)):
         code = EXIT_REFUSED
     if json_out:
         sys.stdout.write(json.dumps(summary(session)) + "\n")
@@ -341,18 +343,23 @@ def _devices(rig: CalibrationRig) -> dict[str, str]:
     return out
 
 
-def write_results(session: CalibrationSession, calibrated_config: Path, work: Path, sim: bool) -> bool:
+def write_results(session: CalibrationSession, calibrated_config: Path, work: Path, sim: bool,
+                  accept: bool = False) -> bool:
     """The calibration into the cell config and the report beside the session; False when the
-    calibration could not be written (the session keeps every result; running the command again retries)."""
+    calibration was not written (the session keeps every result; running the command again retries). A failed
+    accuracy validation keeps the calibration out of the cell config unless ``accept``; the report is written."""
     provenance = {"date": now_iso(), "session": str(session.path), "wizard_version": metadata.version("monoguide"),
                   "devices": session.data.get("devices", {}), "sim": sim}
     ok = True
-    try:
-        session.data["calibration_file"] = str(write_calibration(calibrated_config, session.results(), provenance))
-        _err(f"calibration written into {session.data['calibration_file']}")
-    except MonoguideError as exc:
-        _err(f"error {exc.code}: the calibration was not written into {calibrated_config}: {exc.message}")
+    failed = session.results().get("accuracy", {}).get("passed") is False
+    if failed and not accept:
+        _err(f"the accuracy validation FAILED: the calibration was NOT written into {calibrated_config} (the "
+             f"session keeps it). Look at the report, redo a step (--from STEP), or write it anyway with --accept")
         ok = False
+    else:
+        if failed:
+            _err("the accuracy validation FAILED; writing the calibration anyway (--accept)")
+        ok = _write_calibration(session, calibrated_config, provenance)
     try:
         session.data["report"] = str(write_report(work, session.data))
         _err(f"report: {session.data['report']}")
@@ -360,3 +367,13 @@ def write_results(session: CalibrationSession, calibrated_config: Path, work: Pa
         _err(f"error {exc.code}: no report: {exc.message}")
     session.save()
     return ok
+
+
+def _write_calibration(session: CalibrationSession, calibrated_config: Path, provenance: dict[str, Any]) -> bool:
+    try:
+        session.data["calibration_file"] = str(write_calibration(calibrated_config, session.results(), provenance))
+        _err(f"calibration written into {session.data['calibration_file']}")
+    except MonoguideError as exc:
+        _err(f"error {exc.code}: the calibration was not written into {calibrated_config}: {exc.message}")
+        return False
+    return True

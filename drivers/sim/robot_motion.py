@@ -222,6 +222,7 @@ class SimRobotProgram:
             "pid": os.getpid(),
             "part": self.spec.part,
             "in_position": self.in_position,
+            "fault": self.fault,
             "T_b_f": self.T_b_f.tolist(),
             **({"T_cf_w": self.supply.T_cf_w.tolist()} if self.supply is not None else {}),
             "stops": {str(k): T.tolist() for k, T in self.stops.items()},

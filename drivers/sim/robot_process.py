@@ -6,8 +6,11 @@ import contextlib
 import select
 import subprocess
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
+
+from monoguide.drivers.sim.robot_motion import read_truth
 
 CONTROLLER_MODULES = {"ur": "monoguide.drivers.sim.ur_controller", "kuka": "monoguide.drivers.sim.kuka_controller"}
 START_TIMEOUT_S = 15.0
@@ -24,11 +27,19 @@ class ControllerProcess:
     def stop(self) -> None:
         stop_process(self.process)
 
-    def command(self, fault: str) -> None:
-        """Set the controller's failure mode now (started with ``commands=True``; ``none`` clears it)."""
+    def command(self, fault: str, timeout_s: float = 5.0) -> None:
+        """Set the controller's failure mode (started with ``commands=True``; ``none`` clears it) and wait until
+        it is in force (its truth file says so), so that the next request meets it."""
         assert self.process.stdin is not None, "started without commands=True"
         self.process.stdin.write(fault + "\n")
         self.process.stdin.flush()
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            with contextlib.suppress(OSError, ValueError):
+                if read_truth(self.truth).get("fault") == fault:
+                    return
+            time.sleep(0.005)
+        raise TimeoutError(f"the simulated controller did not take up fault {fault!r} within {timeout_s:g} s")
 
 
 def start_controller(kind: str, spec: Path, truth: Path, host: str, port: int | None = None,

@@ -314,8 +314,13 @@ def test_verify_and_accuracy_against_the_truth(bench: Bench) -> None:
             M = make_T(euler_xyz_to_matrix(*measured[:3]), np.array(measured[3:]))
             assert np.linalg.norm(_at_holes(M, centre) - _at_holes(T, centre)) < mm
             assert pose_difference(M, T)[0] < deg
+    # dT at the grasp point (the holes' centroid): the camera's and the tracker's displacement of that point
+    for row in accuracy["rows"]:
+        lt, mono = (make_T(euler_xyz_to_matrix(*v[:3]), np.array(v[3:])) for v in (row["lt"], row["mono"]))
+        assert row["dT_grasp_mm"] == pytest.approx(np.linalg.norm(_at_holes(mono, centre) - _at_holes(lt, centre)))
     # a verdict against tolerances nothing meets is a result, not a refusal
     assert accuracy["passed"] is False and "RMS" in accuracy["markdown"]
+    assert "grasp point" in accuracy["markdown"]
 
 
 def test_a_camera_measurement_that_fails_is_refused_with_what_was_being_done(bench: Bench) -> None:

@@ -16,12 +16,14 @@ from typing import Any
 import numpy as np
 import pytest
 
+from monoguide.daemon.calibrate_session import open_session
 from monoguide.daemon.calibration_file import (
     CalibrationFileRefused,
     CalibrationValueInvalid,
     read_calibration_provenance,
     write_calibration,
 )
+from monoguide.daemon.cmd_calibrate import write_results
 from monoguide.daemon.config import load_cell_config
 from monoguide.solver.frames import make_T, rotvec_to_matrix
 
@@ -171,3 +173,24 @@ def test_two_writes_keep_two_previous_files_and_untouched_steps(tmp_path: Path) 
     expected = dict(first, base=second["base"])  # the other steps' values are those of the first write
     _assert_loads(path, expected)
     assert path.read_text().count("[calibration]") == 1
+
+
+def test_a_failed_accuracy_validation_keeps_the_calibration_out_unless_accepted(tmp_path: Path) -> None:
+    """`monoguide calibrate` after the last step: a FAILED Table-3 verdict writes the report but not the cell
+    config (nothing changes, no previous copy); `--accept` writes it."""
+    config = _copy(tmp_path, "sim-cell.toml")
+    before = config.read_text()
+    session, _ = open_session(tmp_path / "work", config, False, {})
+    steps = _steps(config, 5)
+    row = {"lt": [0.1, 0.2, 0.3, 10.0, 20.0, 30.0], "mono": [0.1, 0.2, 0.3, 10.0, 20.0, 30.9],
+           "delta": [0.0, 0.0, 0.0, 0.0, 0.0, 0.9], "dR_deg": 0.0, "dT_mm": 0.9, "dT_grasp_mm": 0.9}
+    steps["accuracy"] = {"rows": [row], "rms_dR_deg": 0.0, "rms_dT_mm": 0.9, "rms_dT_grasp_mm": 0.9, "passed": False,
+                         "tolerance_mm": 0.5, "tolerance_deg": 0.05, "markdown": "| LT | ... |"}
+    for name, result in steps.items():
+        session.record_result(name, result)
+    assert write_results(session, config, tmp_path / "work", False) is False
+    assert config.read_text() == before and not list(tmp_path.glob("*.previous.toml"))
+    assert "calibration_file" not in session.data and (tmp_path / "work" / "calibration-report.md").exists()
+    assert write_results(session, config, tmp_path / "work", False, accept=True) is True
+    _assert_loads(config, steps)
+    assert len(list(tmp_path.glob("*.previous.toml"))) == 1
