@@ -169,18 +169,29 @@ def main() -> int:
     os._exit(0)  # never run the interface's destructor: with its controller gone it aborts
 
 
+READ_ATTEMPTS = 20
+
+
 def _read(receive: Any, registers: list[int]) -> dict[str, Any]:
+    """One package's state. ur_rtde updates a whole package at once but each getter reads alone, so a package
+    arriving between two getters would mix two moments (the acknowledgement of "in position" with the pose of
+    the package before, still on its way): read until the package's timestamp is the same before and after."""
     if not receive.isConnected():
         return {"ok": False, "error": "the controller closed the RTDE connection"}
-    return {
-        "ok": True,
-        "timestamp": receive.getTimestamp(),
-        "pose": list(receive.getActualTCPPose()),
-        "robot_mode": receive.getRobotMode(),
-        "safety_mode": receive.getSafetyMode(),
-        "runtime_state": receive.getRuntimeState(),
-        "registers": [receive.getOutputIntRegister(k) for k in registers],
-    }
+    for _ in range(READ_ATTEMPTS):
+        timestamp = receive.getTimestamp()
+        state = {
+            "ok": True,
+            "timestamp": timestamp,
+            "pose": list(receive.getActualTCPPose()),
+            "robot_mode": receive.getRobotMode(),
+            "safety_mode": receive.getSafetyMode(),
+            "runtime_state": receive.getRuntimeState(),
+            "registers": [receive.getOutputIntRegister(k) for k in registers],
+        }
+        if receive.getTimestamp() == timestamp:
+            return state
+    return {"ok": False, "error": f"no consistent state in {READ_ATTEMPTS} reads (packages arrive too fast)"}
 
 
 if __name__ == "__main__":
