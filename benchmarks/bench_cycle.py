@@ -59,7 +59,7 @@ def main() -> int:
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench-cycle-") as folder:
         tmp = Path(folder)
-        config_path = _config(args.config, tmp, args.move_time, args.sharp, args.host)
+        config_path = cheaper_config(args.config, tmp, args.move_time, args.sharp, args.host)
         truth_log = tmp / "truth.jsonl"
         process = subprocess.Popen([sys.executable, "-m", "monoguide.daemon.cli", "sim-cell", "--config",
                                     str(config_path), "--no-plc", "--truth-log", str(truth_log)],
@@ -80,7 +80,8 @@ def main() -> int:
     return 0
 
 
-def _config(path: Path, tmp: Path, move_time: float | None, sharp: bool, host: str = HOST) -> Path:
+def cheaper_config(path: Path, tmp: Path, move_time: float | None, sharp: bool, host: str = HOST) -> Path:
+    """The cell config with the simulator's cost changed (robot motion, defocus), the devices on ``host``."""
     lines = []
     for line in path.read_text().splitlines():
         key = line.split("=")[0].strip()

@@ -24,8 +24,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from bench_cycle import HOST
-from bench_cycle import _config as bench_config
+from bench_cycle import HOST, cheaper_config
 
 from monoguide.daemon.simulate_run import Progress, RunOptions, run_simulation
 
@@ -77,7 +76,7 @@ def main() -> None:
 def sim_config(path: Path, work: Path, move_time: float | None, sharp: bool) -> Path:
     """The cell config with the simulator's cost per cycle changed (defocus, robot motion)."""
     (work / "config").mkdir(parents=True, exist_ok=True)
-    return bench_config(path, work / "config", move_time, sharp, HOST)
+    return cheaper_config(path, work / "config", move_time, sharp, HOST)
 
 
 def verdict(per_cycle: list[dict[str, float]], rows: int, journal_bytes: int, image_bytes: int) -> str:

@@ -13,7 +13,6 @@ done), 2 bad options, config or session, 130 interrupted (Ctrl-C, or end of inpu
 from __future__ import annotations
 
 import contextlib
-import importlib
 import json
 import sys
 import tomllib
@@ -35,10 +34,12 @@ from monoguide.daemon.calibrate_rig import (
 from monoguide.daemon.calibrate_session import (
     CalibrationSession,
     CalibrationSessionInvalid,
+    CalibrationStepNotReady,
     now_iso,
     open_session,
 )
-from monoguide.daemon.calibrate_steps_frames import CELL_METHODS
+from monoguide.daemon.calibrate_steps_camera import run_accuracy, run_part, run_sfi, run_verify
+from monoguide.daemon.calibrate_steps_frames import CELL_METHODS, run_base, run_cell, run_intrinsics
 from monoguide.daemon.calibration_file import write_calibration
 from monoguide.daemon.calibration_report import write_report
 from monoguide.daemon.config import CellConfig, load_cell_config
@@ -46,9 +47,9 @@ from monoguide.drivers.errors import ConfigError
 from monoguide.solver.errors import MonoguideError
 
 EXIT_OK, EXIT_REFUSED, EXIT_CONFIG, EXIT_INTERRUPTED = 0, 1, 2, 130
-STEP_MODULES = {"intrinsics": "calibrate_steps_frames", "cell": "calibrate_steps_frames",
-                "base": "calibrate_steps_frames", "part": "calibrate_steps_camera", "sfi": "calibrate_steps_camera",
-                "verify": "calibrate_steps_camera", "accuracy": "calibrate_steps_camera"}
+STEP_FUNCTIONS: dict[str, Callable[[CalibrationRig, dict[str, dict[str, Any]]], dict[str, Any]]] = {
+    "intrinsics": run_intrinsics, "cell": run_cell, "base": run_base, "part": run_part, "sfi": run_sfi,
+    "verify": run_verify, "accuracy": run_accuracy}
 SUMMARY_KEYS = ("base_mm", "base_deg", "sfi_mm_max", "sfi_deg_max", "focal_rel_error")
 OPTION_NAMES = tuple(f.name for f in fields(CalibrationOptions))
 
@@ -136,7 +137,7 @@ def run_steps(rig: CalibrationRig, session: CalibrationSession, steps: list[str]
             return EXIT_REFUSED
         rig.progress(f"--- step '{step}' ({STEPS.index(step) + 1} of {len(STEPS)})")
         try:
-            result = step_function(step)(rig, session.results())
+            result = STEP_FUNCTIONS[step](rig, session.results())
         except CalibrationAborted as exc:
             _err(f"{exc.message} (the session keeps {len(session.done())} step(s) done)")
             return EXIT_INTERRUPTED
@@ -150,12 +151,6 @@ def run_steps(rig: CalibrationRig, session: CalibrationSession, steps: list[str]
         for line in describe(step, session.data["steps"][step]):
             human(line)
     return EXIT_OK
-
-
-def step_function(step: str) -> Callable[[CalibrationRig, dict[str, dict[str, Any]]], dict[str, Any]]:
-    """``run_<step>`` of its module (imported when first needed)."""
-    module = importlib.import_module(f"monoguide.daemon.{STEP_MODULES[step]}")
-    return getattr(module, f"run_{step}")
 
 
 def summary(session: CalibrationSession) -> dict[str, Any]:
@@ -286,8 +281,6 @@ def plan_steps(session: CalibrationSession, step: str | None, from_step: str | N
     if step is not None:
         missing = session.missing_for(step)
         if missing:
-            from monoguide.daemon.calibrate_session import CalibrationStepNotReady
-
             raise CalibrationStepNotReady(f"step '{step}' needs {', '.join(missing)} done first "
                                           f"(monoguide calibrate {missing[0]} ...)")
         dropped = session.forget(step)
@@ -313,7 +306,7 @@ def plan_steps(session: CalibrationSession, step: str | None, from_step: str | N
 def _open_rig(cfg: CellConfig, config_path: Path, work: Path, options: CalibrationOptions, *, sim: bool, seed: int,
               host: str | None, yes: bool) -> Iterator[CalibrationRig]:
     if sim:
-        from monoguide.daemon.calibrate_sim import open_sim_rig  # RIG's; only --sim needs it
+        from monoguide.daemon.calibrate_sim import open_sim_rig  # only --sim needs it (it starts sim-cell)
 
         with open_sim_rig(config_path, work, options, seed=seed, host=host, progress=_err) as rig:
             yield rig

@@ -30,7 +30,6 @@ from monoguide.drivers.sim.robot_motion import (
     load_robot_spec,
     run_program,
     serve_controller,
-    write_truth,
 )
 from monoguide.solver.frames import T_to_kuka_frame, kuka_frame_to_T
 
@@ -88,9 +87,7 @@ class KukaController:
 
     def command(self, text: str) -> None:
         """A fault command at run time (``none`` clears): a stall ends at once, the reports flow again."""
-        applied = apply_command(self.program.set_fault, text)
-        write_truth(self.truth_path, self.program.truth())  # the fault in force, on disk (even while stalled)
-        if applied and self.program.fault != "stall" and self.stalled:
+        if apply_command(self.program, self.truth_path, text) and self.stalled:
             log.info("stall ends: the controller answers again")
             self.stalled = False
 

@@ -323,14 +323,18 @@ def _read_commands(loop: asyncio.AbstractEventLoop, command: Callable[[str], Non
             loop.call_soon_threadsafe(command, text.strip())
 
 
-def apply_command(set_fault: Callable[[str], None], text: str) -> bool:
-    """Apply one fault command line; a bad one is said on stderr (``error: ...``) and changes nothing."""
+def apply_command(program: SimRobotProgram, truth_path: Path, text: str) -> bool:
+    """Apply one fault command line (a bad one is said on stderr, ``error: ...``, and changes nothing) and write
+    the fault in force into the truth file at once, even while stalled (a test waits for it there). True when
+    the controller is to answer again (the fault in force is not a stall)."""
     try:
-        set_fault(text)
+        program.set_fault(text)
+        applied = True
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr, flush=True)
-        return False
-    return True
+        applied = False
+    write_truth(truth_path, program.truth())
+    return applied and program.fault != "stall"
 
 
 def grasp_error(D_b: np.ndarray, T_b_g0: np.ndarray, T_b_w: np.ndarray, T_b_w0: np.ndarray) -> tuple[float, float]:
