@@ -20,6 +20,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from monoguide.daemon.config import CellConfig, default_sim_state_file, load_cell_config
+from monoguide.daemon.config_reader import ConfigMissingKey
+from monoguide.drivers.atomic_file import write_atomic
 from monoguide.drivers.camera import Camera, CameraSettings
 from monoguide.drivers.errors import ConfigError, DeviceNotFound
 from monoguide.drivers.genicam_camera import GenICamCamera
@@ -65,7 +67,7 @@ def build_tracker(config: CellConfig, state_file: Path | None = None) -> LaserTr
     running ``monoguide sim-cell``."""
     t = config.tracker
     if t is None:
-        raise ConfigError(f"{config.path}: no [tracker] section")
+        raise ConfigMissingKey(f"{config.path}: [tracker]: missing section")
     if t.backend == "serial":
         assert t.port is not None  # the config loader insists
         return SerialLaserTracker(t.port, t.baud, t.timeout_s)
@@ -85,7 +87,7 @@ def build_robot(config: CellConfig, state_file: Path | None = None) -> Robot:
 
     r = config.robot
     if r is None:
-        raise ConfigError(f"{config.path}: no [robot] section")
+        raise ConfigMissingKey(f"{config.path}: [robot]: missing section")
     host, port = r.host, r.port
     if r.simulated:
         path = state_file or sim_state_file(config)
@@ -108,7 +110,7 @@ def build_plc(config: CellConfig) -> Plc:
     ``monoguide sim-cell`` listens exactly there too)."""
     p = config.plc
     if p is None:
-        raise ConfigError(f"{config.path}: no [plc] section")
+        raise ConfigMissingKey(f"{config.path}: [plc]: missing section")
     return ModbusPlc(p.host, p.port, p.unit, p.base, p.word_order, p.timeout_s)  # type: ignore[arg-type]
 
 
@@ -197,9 +199,7 @@ def sim_state_file(config: CellConfig) -> Path:
 def write_sim_state(path: Path, state: dict[str, Any]) -> None:
     """Write the state file atomically (a reader never sees half a file)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps({"format": SIM_STATE_FORMAT, **state}, indent=1))
-    os.replace(tmp, path)
+    write_atomic(path, json.dumps({"format": SIM_STATE_FORMAT, **state}, indent=1))
 
 
 def read_sim_state(path: Path) -> dict[str, Any]:

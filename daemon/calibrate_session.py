@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from monoguide.daemon.calibrate_rig import REQUIRES, STEPS, CalibrationOptions
+from monoguide.drivers.atomic_file import write_atomic
 from monoguide.solver.errors import MonoguideError
 
 SESSION_FILE = "calibration-session.json"
@@ -194,9 +195,7 @@ class CalibrationSession:
     def save(self) -> None:
         """Write atomically: a reader (or a crash) sees the old file or the new one, never half of one."""
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = self.path.with_name(self.path.name + ".tmp")
-        tmp.write_text(json.dumps(self.data, indent=1, allow_nan=True) + "\n")
-        os.replace(tmp, self.path)
+        write_atomic(self.path, json.dumps(self.data, indent=1, allow_nan=True) + "\n", durable=True)
 
 
 def open_session(work_dir: Path, config: Path, sim: bool, given: dict[str, Any], *, restart: bool = False,

@@ -1,41 +1,56 @@
 """Write the wizard's calibrated values into the cell config, in place, keeping everything else.
 
-:func:`write_calibration` edits the file's TEXT, not a re-serialised TOML: only the values of the calibrated keys
-change (``[camera.intrinsics]``, ``[camera] T_f_c``, ``[reference] T_cf_b`` and ``T_cf_w0``, each
-``[[measuring_poses]] T_cf_si``); every comment, every other key, the order and the layout stay as they were. A
-calibrated key the file lacks (``T_cf_si`` of a pose given by ``T_b_f``) is added at the end of its table. The
-``[calibration]`` section (provenance: date, session, wizard version, devices, a residual summary per step and
-``previous``) is replaced as a whole.
+:func:`write_calibration` edits the parsed document (``tomlkit``, which keeps a TOML file's comments, order and
+layout), not a re-serialised TOML: only the values of the calibrated keys change (``[camera.intrinsics]``,
+``[camera] T_f_c``, ``[reference] T_cf_b`` and ``T_cf_w0``, each ``[[measuring_poses]] T_cf_si``); every comment,
+every other key, the order and the layout stay as they were, whether a table is written with a header or
+inline. A calibrated key the file lacks (``T_cf_si`` of a pose given by ``T_b_f``) is added after the last value
+of its table. The ``[calibration]`` section (provenance: date, session, wizard version, devices, a residual
+summary per step and ``previous``) is replaced as a whole.
 
 Safety: the new text goes to a temporary file beside the config, is loaded with
 :func:`~monoguide.daemon.config.load_cell_config` and checked to hold exactly the calibrated values; only then is
 the config copied to ``<stem>.<UTC timestamp>.previous.toml`` (the previous calibration, named in
-``[calibration] previous``) and the temporary file renamed over it (``os.replace``: atomic). If the new file does
-not load, nothing is replaced or copied and :class:`CalibrationFileRefused` says why. docs/calibration.md,
+``[calibration] previous``) and the temporary file renamed over it
+(:func:`~monoguide.drivers.atomic_file.write_atomic`: atomic, and synced to disk). If the new file does not load,
+nothing is replaced or copied and :class:`CalibrationFileRefused` says why. docs/calibration.md,
 "The calibration file".
 """
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import shutil
+import stat
 import tomllib
-from dataclasses import dataclass
 from datetime import UTC, datetime
 from importlib import metadata
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import tomlkit
+import tomlkit.exceptions
+from tomlkit.items import InlineTable, Item, Table
 
 from monoguide.daemon.config import CALIBRATION_STEPS, INTRINSICS_KEYS, CellConfig, ConfigError, load_cell_config
+from monoguide.drivers.atomic_file import write_atomic
+from monoguide.drivers.toml_format import (
+    MATRIX_DECIMALS,
+    add_after_last_value,
+    commented,
+    inline_table,
+    matrix,
+    opening_comment,
+    replace_section,
+)
 from monoguide.solver.calibration.errors import CalibrationError
 from monoguide.solver.errors import MonoguideError
 from monoguide.solver.frames import check_transform, make_T, orthonormalize
 
 __all__ = [
+    "MATRIX_DECIMALS",
     "PROVENANCE_KEYS",
     "CalibrationFileError",
     "CalibrationFileRefused",
@@ -46,10 +61,11 @@ __all__ = [
     "write_calibration",
 ]
 
-MATRIX_DECIMALS = 12  # a round trip through the file is exact to ~1e-12 (mm and rotation entries)
-ROUND_TRIP_TOL = 1e-9
+ROUND_TRIP_TOL = 1e-9  # what loads back must equal what was calibrated to this (MATRIX_DECIMALS: ~1e-12)
 # what the caller may give in ``provenance`` (``previous`` is the writer's own)
 PROVENANCE_KEYS = ("date", "session", "wizard_version", "sim", "devices")
+_TABLES = {"camera.intrinsics": ("camera", "intrinsics"), "camera": ("camera",), "reference": ("reference",),
+           "measuring_poses": ("measuring_poses",)}
 
 
 class CalibrationFileError(CalibrationError):
@@ -75,8 +91,11 @@ class CalibrationValueInvalid(CalibrationFileError):
 
 
 class CalibrationFileUneditable(CalibrationFileError):
-    """The config's text does not hold a calibrated key's table as a ``[table]`` the writer can edit (e.g. an
-    inline table); the message names it."""
+    """The config is not a TOML file the calibration can be written into: not valid TOML (or not UTF-8), or a
+    calibrated key's table is missing or not a table (``camera = 5``); the message names it.
+
+    Tables written inline (``intrinsics = { ... }``) or out of order are edited like any other, so a file the
+    loader accepts is never uneditable: every table the calibration writes into is one it requires."""
 
     code = "CALIBRATION_FILE_UNEDITABLE"
     plc_code = 728
@@ -95,35 +114,34 @@ def write_calibration(config_path: Path, steps: dict[str, dict[str, Any]], prove
     from ``steps`` leave their values and their earlier provenance summary untouched."""
     config_path = Path(config_path)
     try:
-        text = config_path.read_text()
+        original = config_path.read_bytes()
+        mode = stat.S_IMODE(config_path.stat().st_mode)
     except OSError as exc:
         raise CalibrationFileError(f"{config_path}: cannot read the cell config: {exc}") from exc
     try:
+        text = original.decode("utf-8")
         raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
+        doc = tomlkit.parse(text)
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError, tomlkit.exceptions.TOMLKitError) as exc:
         raise CalibrationFileUneditable(f"{config_path}: not valid TOML, nothing written: {exc}") from exc
     now = datetime.now(UTC)
     previous = _previous_path(config_path, now)
     values = _calibrated_values(steps, raw, config_path)
-    block = _provenance_block(steps, provenance, raw, previous.name, now)
+    record = _provenance(steps, provenance, raw, previous.name, now)
 
-    doc = _Document(text, config_path)
     for (table, index, key), (kind, value) in values.items():
-        doc.set(table, index, key, _format(kind, value))
-    doc.replace_tables("calibration", block)
-    new_text = doc.text
+        _set(_calibrated_table(doc, table, index, config_path), key, kind, value)
+    replace_section(doc, "calibration", _provenance_table(record))
 
-    tmp = config_path.with_name(f".{config_path.name}.{os.getpid()}.tmp")
+    def check_then_keep_previous(written: Path) -> None:
+        _check_written(written, values, config_path)
+        write_atomic(previous, original, mode=mode)
+        shutil.copystat(config_path, previous)
+
     try:
-        tmp.write_text(new_text)
-        shutil.copymode(config_path, tmp)
-        _check_written(tmp, values, config_path)
-        shutil.copy2(config_path, previous)
-        os.replace(tmp, config_path)
+        write_atomic(config_path, doc.as_string(), mode=mode, durable=True, before_replace=check_then_keep_previous)
     except OSError as exc:
         raise CalibrationFileError(f"{config_path}: cannot write the calibration (nothing replaced): {exc}") from exc
-    finally:
-        tmp.unlink(missing_ok=True)
     return config_path
 
 
@@ -249,8 +267,9 @@ def _check_written(tmp: Path, values: dict[tuple[str, int, str], tuple[str, Any]
 # --- provenance ----------------------------------------------------------------------------------
 
 
-def _provenance_block(steps: dict[str, dict[str, Any]], provenance: dict[str, Any], raw: dict[str, Any],
-                      previous: str, now: datetime) -> str:
+def _provenance(steps: dict[str, dict[str, Any]], provenance: dict[str, Any], raw: dict[str, Any],
+                previous: str, now: datetime) -> dict[str, Any]:
+    """The ``[calibration]`` section to write, as plain data in the order written (docs/calibration.md)."""
     if unknown := sorted(set(provenance) - set(PROVENANCE_KEYS)):
         raise CalibrationValueInvalid(f"provenance: unknown keys {unknown}; known: {list(PROVENANCE_KEYS)}")
     date = provenance.get("date") or now.isoformat(timespec="seconds")
@@ -264,22 +283,37 @@ def _provenance_block(steps: dict[str, dict[str, Any]], provenance: dict[str, An
     old = raw.get("calibration") if isinstance(raw.get("calibration"), dict) else {}
     summaries = {k: v for k, v in (old.get("steps") or {}).items() if k in CALIBRATION_STEPS and k not in steps}
     summaries |= {name: step_summary(name, result) for name, result in steps.items()}
-    lines = ["[calibration]  # written by `monoguide calibrate` (docs/calibration.md, \"The calibration file\")",
-             f"date = {_string(str(date))}"]
+    record: dict[str, Any] = {"date": str(date)}
     if provenance.get("session") is not None:
-        lines.append(f"session = {_string(str(provenance['session']))}")
-    lines.append(f"wizard_version = {_string(str(provenance.get('wizard_version') or _version()))}")
-    lines.append(f"previous = {_string(previous)}  # this file before the calibration; roll back by copying it here")
+        record["session"] = str(provenance["session"])
+    record["wizard_version"] = str(provenance.get("wizard_version") or _version())
+    record["previous"] = previous
     if provenance.get("sim") is not None:
-        lines.append(f"sim = {_value(bool(provenance['sim']))}")
+        record["sim"] = bool(provenance["sim"])
     if devices:
-        lines += ["", "[calibration.devices]"] + [f"{_key(k)} = {_string(str(v))}" for k, v in devices.items()]
+        record["devices"] = {str(k): str(v) for k, v in devices.items()}
     if summaries:
-        lines += ["", "[calibration.steps]  # per step: when, and its residual summary"]
-        for name in (s for s in CALIBRATION_STEPS if s in summaries):
-            items = ", ".join(f"{_key(k)} = {_value(v)}" for k, v in summaries[name].items())
-            lines.append(f"{name} = {{ {items} }}" if items else f"{name} = {{}}")
-    return "\n".join(lines) + "\n"
+        record["steps"] = {name: summaries[name] for name in CALIBRATION_STEPS if name in summaries}
+    return record
+
+
+def _provenance_table(record: dict[str, Any]) -> Table:
+    """``[calibration]`` with its comments; a step's summary on one line (an inline table)."""
+    table = commented(tomlkit.table(), 'written by `monoguide calibrate` (docs/calibration.md, "The calibration '
+                                       'file")')
+    for key, value in record.items():
+        if key == "previous":
+            table[key] = commented(tomlkit.item(value), "this file before the calibration; roll back by copying "
+                                                        "it here")
+        elif key == "devices":
+            table[key] = tomlkit.table()
+            table[key].update(value)
+        elif key == "steps":
+            table[key] = commented(tomlkit.table(), "per step: when, and its residual summary")
+            table[key].update({name: inline_table(summary) for name, summary in value.items()})
+        else:
+            table[key] = value
+    return table
 
 
 def _version() -> str:
@@ -298,7 +332,43 @@ def _previous_path(config_path: Path, now: datetime) -> Path:
     raise CalibrationFileError(f"{config_path}: too many previous copies stamped {stamp}")
 
 
-# --- TOML text -----------------------------------------------------------------------------------
+# --- editing the document ------------------------------------------------------------------------
+
+
+def _calibrated_table(doc: tomlkit.TOMLDocument, table: str, index: int, path: Path) -> Table | InlineTable:
+    """The table of ``doc`` a calibrated key of ``table`` (``[[measuring_poses]]`` entry ``index``) goes into."""
+    node: Any = doc
+    where = ""
+    for part in _TABLES[table]:
+        where = f"{where}.{part}" if where else part
+        node = node.get(part) if isinstance(node, dict) else None
+        if node is None:
+            raise CalibrationFileUneditable(f"{path}: there is no [{where}] to write the calibration into")
+    if index >= 0:
+        where = f"[[{where}]] #{index + 1}"
+        node = node[index] if isinstance(node, list) and index < len(node) else None
+    else:
+        where = f"[{where}]"
+    if not isinstance(node, dict):
+        raise CalibrationFileUneditable(f"{path}: {where} is not a table, the calibration cannot be written into it")
+    return node
+
+
+def _set(table: Table | InlineTable, key: str, kind: str, value: Any) -> None:
+    """Set a calibrated value; its comments (after it, after a matrix's opening bracket) stay."""
+    if kind == "integer":
+        item: Item = tomlkit.item(int(value))
+    elif kind == "number":
+        item = tomlkit.item(float(value))
+    else:  # one row per line; inside an inline table too (TOML allows newlines inside an array value)
+        item = matrix(value, comment=opening_comment(table[key]) if key in table else None)
+    if key in table:
+        table[key] = item
+    else:
+        add_after_last_value(table, key, item)
+
+
+# --- provenance values ----------------------------------------------------------------------------
 
 
 def _plain(value: Any) -> Any:
@@ -313,220 +383,3 @@ def _plain(value: Any) -> Any:
         numbers = [_plain(v) for v in value]
         return numbers if all(isinstance(v, int | float) and not isinstance(v, bool) for v in numbers) else None
     return None
-
-
-def _value(value: Any) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, str):
-        return _string(value)
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
-        return repr(value)
-    return "[" + ", ".join(_value(float(v)) for v in value) + "]"
-
-
-def _string(value: str) -> str:
-    return json.dumps(value, ensure_ascii=False)  # JSON's escapes are TOML's basic-string escapes
-
-
-def _key(key: str) -> str:
-    bare = key and all(c.isascii() and (c.isalnum() or c in "_-") for c in key)
-    return key if bare else _string(key)
-
-
-def _format(kind: str, value: Any) -> str:
-    if kind == "integer":
-        return str(value)
-    if kind == "number":
-        return repr(float(value))
-    rows = ",\n    ".join("[" + ", ".join(f"{v:.{MATRIX_DECIMALS}f}" for v in row) + "]" for row in value)
-    return "[\n    " + rows + ",\n]"
-
-
-@dataclass
-class _Header:
-    name: str
-    index: int  # the entry of an array of tables ([[name]]), -1 for a table
-    start: int  # offset of its line
-    end: int  # offset after its line
-
-
-@dataclass
-class _Entry:
-    table: str
-    index: int
-    key: str  # as written, dotted keys joined by "."
-    value_start: int
-    value_end: int
-    line_end: int  # offset after the line the value ends on
-
-
-class _Document:
-    """A TOML text scanned into headers and key/value entries, edited by offsets."""
-
-    def __init__(self, text: str, path: Path) -> None:
-        self.text, self.path = text, path
-        self._scan()
-
-    def set(self, table: str, index: int, key: str, value: str) -> None:
-        entry = next((e for e in self.entries if e.table == table and e.index == index and e.key == key), None)
-        if entry is not None:
-            old = self.text[entry.value_start:entry.value_end]
-            if "\n" in value and old.startswith("[") and "\n" in old:  # keep a comment after the opening bracket
-                first = old.split("\n", 1)[0]
-                if "#" in first:
-                    value = "[  " + first[first.index("#"):].rstrip() + value[1:]
-            self._splice(entry.value_start, entry.value_end, value)
-            return
-        header = next((h for h in self.headers if h.name == table and h.index == index), None)
-        if header is None:
-            where = f"[[{table}]] #{index + 1}" if index >= 0 else f"[{table}]"
-            raise CalibrationFileUneditable(f"{self.path}: {where} is not written as a table header the calibration "
-                                            f"can edit ({key} cannot be set); write it as {where}")
-        last = [e for e in self.entries if e.table == table and e.index == index]
-        at = last[-1].line_end if last else header.end
-        line = f"{key} = {value}\n"
-        if at > 0 and self.text[at - 1] != "\n":
-            line = "\n" + line
-        self._splice(at, at, line)
-
-    def replace_tables(self, name: str, block: str) -> None:
-        """Remove every ``[name]`` / ``[name.*]`` table and put ``block`` where the first was (else at the end)."""
-        spans = []
-        for i, h in enumerate(self.headers):
-            if h.name == name or h.name.startswith(name + "."):
-                end = self._attached_start(self.headers[i + 1].start) if i + 1 < len(self.headers) else len(self.text)
-                spans.append((h.start, max(end, h.end)))
-        if not spans:
-            self.text = self.text.rstrip("\n") + "\n\n" + block
-        else:
-            for start, end in reversed(spans[1:]):
-                self._splice(start, end, "")
-            start, end = spans[0]
-            rest = self.text[end:]
-            self._splice(start, end, block + ("\n" if rest.strip() else ""))
-        self._scan()
-
-    # --- private -------------------------------------------------------------------------------
-
-    def _splice(self, start: int, end: int, new: str) -> None:
-        self.text = self.text[:start] + new + self.text[end:]
-        self._scan()
-
-    def _attached_start(self, offset: int) -> int:
-        """Where the comment lines directly above the line at ``offset`` begin (they belong to it)."""
-        start = offset
-        while start > 0:
-            prev = self.text.rfind("\n", 0, start - 1) + 1
-            if not self.text[prev:start].strip().startswith("#"):
-                break
-            start = prev
-        return start
-
-    def _scan(self) -> None:
-        text, n = self.text, len(self.text)
-        self.headers: list[_Header] = []
-        self.entries: list[_Entry] = []
-        table, index, counts = "", -1, {}
-        i = 0
-        while i < n:
-            j = i
-            while j < n and text[j] in " \t":
-                j += 1
-            if j >= n or text[j] in "\r\n#":
-                i = _eol(text, j)
-                continue
-            if text[j] == "[":
-                array = text.startswith("[[", j)
-                close = text.find("]]" if array else "]", j)
-                if close < 0:
-                    raise CalibrationFileUneditable(f"{self.path}: a table header without its closing bracket")
-                table = ".".join(p.strip().strip('"') for p in text[j + (2 if array else 1):close].split("."))
-                index = counts.get(table, 0) if array else -1
-                if array:
-                    counts[table] = index + 1
-                end = _eol(text, close)
-                self.headers.append(_Header(table, index, i, end))
-                i = end
-                continue
-            eq = _key_end(text, j)
-            key = ".".join(p.strip().strip('"') for p in text[j:eq].split("."))
-            start = eq + 1
-            while start < n and text[start] in " \t":
-                start += 1
-            stop = _value_end(text, start)
-            self.entries.append(_Entry(table, index, key, start, stop, _eol(text, stop)))
-            i = _eol(text, stop)
-
-
-def _eol(text: str, i: int) -> int:
-    """Offset after the newline that ends the line holding offset ``i``."""
-    k = text.find("\n", i)
-    return len(text) if k < 0 else k + 1
-
-
-def _key_end(text: str, i: int) -> int:
-    while i < len(text) and text[i] != "=":
-        if text[i] in "\"'":
-            i = text.find(text[i], i + 1)
-            if i < 0:
-                break
-        if text[i] == "\n":
-            break
-        i += 1
-    if i >= len(text) or i < 0 or text[i] != "=":
-        raise CalibrationFileUneditable("a line is neither a table header nor key = value")
-    return i
-
-
-def _string_end(text: str, i: int) -> int:
-    """Offset after the string starting at ``i``."""
-    for quote in ('"""', "'''"):
-        if text.startswith(quote, i):
-            k = i + 3
-            while True:
-                k = text.find(quote, k)
-                if k < 0:
-                    return len(text)
-                if quote == "'''" or text[k - 1] != "\\":
-                    while text.startswith(quote[0], k + 3):  # up to two quotes may close the content
-                        k += 1
-                    return k + 3
-                k += 1
-    quote, k = text[i], i + 1
-    while k < len(text) and text[k] != quote and text[k] != "\n":
-        k += 2 if quote == '"' and text[k] == "\\" else 1
-    return k + 1
-
-
-def _value_end(text: str, i: int) -> int:
-    """Offset after the value starting at ``i`` (arrays and inline tables may span lines)."""
-    n = len(text)
-    if i < n and text[i] in "\"'":
-        return _string_end(text, i)
-    if i < n and text[i] in "[{":
-        depth = 0
-        while i < n:
-            c = text[i]
-            if c in "\"'":
-                i = _string_end(text, i)
-                continue
-            if c == "#":
-                i = _eol(text, i)
-                continue
-            if c in "[{":
-                depth += 1
-            elif c in "]}":
-                depth -= 1
-                if depth == 0:
-                    return i + 1
-            i += 1
-        return n
-    k = i
-    while k < n and text[k] not in "#\r\n":
-        k += 1
-    while k > i and text[k - 1] in " \t":
-        k -= 1
-    return k

@@ -1,4 +1,4 @@
-"""The calibration wizard's report: ``calibration-report.md`` with PNG plots drawn with Pillow.
+"""The calibration wizard's report: ``calibration-report.md`` with PNG plots drawn with matplotlib.
 
 :func:`write_report` reads a calibration session (the JSON object of ``calibration-session.json``,
 docs/calibration.md) and draws what its steps hold, any subset of them: the residual per point of the cell
@@ -14,19 +14,36 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from PIL import Image, ImageDraw, ImageFont
 
 from monoguide.daemon.calibration_file import step_summary
 from monoguide.daemon.config import CALIBRATION_STEPS, CellConfig, ConfigError, load_cell_config
-from monoguide.daemon.simulate_report import nice_top
+from monoguide.daemon.figures import (
+    DEG,
+    MM,
+    REFERENCE,
+    SERIES,
+    bar_chart,
+    draw_style,
+    figure_legend,
+    from_zero,
+    label_points,
+    legend,
+    new_figure,
+    outline,
+    save_png,
+)
 from monoguide.solver.calibration.errors import CalibrationError
 from monoguide.solver.camera import CameraModel
 from monoguide.solver.errors import MonoguideError
 from monoguide.solver.frames import invert, make_T
 from monoguide.solver.planning.prediction import observed_covariance, pose_sigmas
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
 __all__ = ["CHART_SIZE", "FIGURES", "PLAN_SIZE", "REPORT_NAME", "CalibrationReportFailed", "write_report"]
 
@@ -52,11 +69,6 @@ TITLES = {"intrinsics": "1 Camera intrinsics", "cell": "2 Cell frame CF", "base"
           "part": "4 Part frame WF and T_cf_w0", "sfi": "5 Measuring-pose frames SFi", "verify": "6 Verification",
           "accuracy": "7 Accuracy validation (Table 3)"}
 
-MARGIN = (80, 44, 70, 64)  # left, top, right, bottom
-BACKGROUND, AXIS, GRID, TEXT = (255, 255, 255), (40, 40, 40), (225, 225, 225), (20, 20, 20)
-MM, DEG, BAD, REF = (40, 110, 200), (230, 130, 30), (210, 40, 40), (120, 120, 120)
-POSE_COLOURS = [(60, 120, 220), (60, 170, 90), (230, 130, 30), (180, 70, 200), (40, 170, 170), (200, 70, 120)]
-
 
 class CalibrationReportFailed(CalibrationError):
     """The report could not be written (the directory is not writable); the calibration itself stands."""
@@ -75,20 +87,19 @@ def write_report(directory: Path, session: dict[str, Any], config: CellConfig | 
             config = load_cell_config(session["config"])
         except ConfigError:
             config = None
-    pictures: dict[str, Image.Image] = {}
-    for step, result in steps.items():
-        for name, picture in zip(FIGURES[step], _DRAW[step](result, steps, config), strict=True):
-            if picture is not None:  # None: not drawable from what is known (the map without the config)
-                pictures[name] = picture
     truth = {step: r["truth_error"] for step, r in steps.items() if r.get("truth_error")}
-    if truth:
-        pictures[TRUTH_FIGURE] = draw_truth_errors(truth)
+    out, pictures = directory / REPORT_NAME, set()
     try:
         directory.mkdir(parents=True, exist_ok=True)
-        for name, picture in pictures.items():
-            picture.save(directory / name)
-        out = directory / REPORT_NAME
-        out.write_text(markdown(session, steps, truth, set(pictures)))
+        for step, result in steps.items():  # a step's figures at a time: drawn, written, released
+            for name, figure in zip(FIGURES[step], _DRAW[step](result, steps, config), strict=True):
+                if figure is not None:  # None: not drawable from what is known (the map without the config)
+                    save_png(figure, directory / name)
+                    pictures.add(name)
+        if truth:
+            save_png(draw_truth_errors(truth), directory / TRUTH_FIGURE)
+            pictures.add(TRUTH_FIGURE)
+        out.write_text(markdown(session, steps, truth, pictures))
     except OSError as exc:
         raise CalibrationReportFailed(f"{directory}: cannot write the calibration report: {exc}") from exc
     return out
@@ -192,35 +203,60 @@ _SECTION: dict[str, Callable[[dict[str, Any]], list[str]]] = {
 # --- figures -------------------------------------------------------------------------------------
 
 
-def draw_intrinsics(r: dict[str, Any], *_: Any) -> list[Image.Image]:
+@draw_style
+def draw_intrinsics(r: dict[str, Any], *_: Any) -> list[Figure]:
     per = [float(v) for v in r.get("per_image_rms_px") or []]
-    return [_bars(f"reprojection RMS per image (px); all: {_v(r.get('rms_px'))} px",
-                  [str(i) for i in range(len(per))], per, "px", MM)]
+    figure, ax = _chart(f"{TITLES['intrinsics']}: reprojection RMS per plate image")
+    bar_chart(ax, [str(i) for i in range(len(per))], per, label="RMS of the image",
+              reference=_number(r.get("rms_px")), reference_label=f"RMS of all images, {_v(r.get('rms_px'))} px")
+    ax.set_xlabel("plate image")
+    ax.set_ylabel("reprojection RMS (px)")
+    legend(ax)
+    return [figure]
 
 
-def draw_point_residuals(step: str) -> Callable[..., list[Image.Image]]:
-    def draw(r: dict[str, Any], *_: Any) -> list[Image.Image]:
+def draw_point_residuals(step: str) -> Callable[..., list[Figure]]:
+    what = {"cell": "benchmark", "base": "robot pose", "part": "featured hole"}[step]
+
+    @draw_style
+    def draw(r: dict[str, Any], *_: Any) -> list[Figure]:
         res = r.get("residuals_mm") or {}
         labels, values = (list(res), list(res.values())) if isinstance(res, dict) else (
             [str(i + 1) for i in range(len(res))], list(res))
-        what = {"cell": "benchmark", "base": "robot pose", "part": "featured hole"}[step]
-        return [_bars(f"{TITLES[step]}: residual per {what} (mm); RMS {_v(r.get('rms_mm'))} mm", labels,
-                      [float(v) for v in values], "mm", MM, reference=r.get("rms_mm"), reference_label="RMS")]
+        figure, ax = _chart(f"{TITLES[step]}: residual per {what} of the fit")
+        bar_chart(ax, labels, [float(v) for v in values], label=f"residual of the {what}",
+                  reference=_number(r.get("rms_mm")), reference_label=f"RMS, {_v(r.get('rms_mm'))} mm")
+        ax.set_xlabel(what)
+        ax.set_ylabel("residual (mm)")
+        legend(ax)
+        return [figure]
 
     return draw
 
 
 def draw_sfi(r: dict[str, Any], steps: dict[str, dict[str, Any]], config: CellConfig | None
-             ) -> list[Image.Image | None]:
+             ) -> list[Figure | None]:
+    return [draw_sfi_spread(r), draw_measuring_poses(r, steps, config), draw_uncertainty_map(r, steps, config)]
+
+
+@draw_style
+def draw_sfi_spread(r: dict[str, Any]) -> Figure:
+    """Each measuring-pose frame SFi's spread over its visits: mm (bars, left), deg (dots, right)."""
     poses = r.get("poses") or []
-    spread = _bars("SFi spread over the visits: mm bars (left), deg dots (right scale)",
-                   [str(p.get("name")) for p in poses], [float(p.get("spread_mm", math.nan)) for p in poses], "mm", MM,
-                   dots=[float(p.get("spread_deg", math.nan)) for p in poses], dots_unit="deg")
-    return [spread, draw_measuring_poses(r, steps, config), draw_uncertainty_map(r, steps, config)]
+    figure, ax = _chart(f"{TITLES['sfi']}: spread of each frame over its visits")
+    bar_chart(ax, [str(p.get("name")) for p in poses], [_number(p.get("spread_mm")) for p in poses],
+              label="spread, position (mm, left)")
+    right = _dots(ax, [_number(p.get("spread_deg")) for p in poses], label="spread, rotation (deg, right)")
+    ax.set_xlabel("measuring pose")
+    ax.set_ylabel("spread over the visits, position (mm)")
+    right.set_ylabel("spread over the visits, rotation (deg)", color=DEG)
+    legend(ax, right)
+    return figure
 
 
+@draw_style
 def draw_measuring_poses(r: dict[str, Any], steps: dict[str, dict[str, Any]],
-                         config: CellConfig | None) -> Image.Image:
+                         config: CellConfig | None) -> Figure:
     """The calibrated cameras SFi (dot, line of sight to the part's plane) over the part's holes and outline,
     in the reference part's frame: from above (x right, y up) and from the side (x right, z up)."""
     if "part" in steps:
@@ -232,36 +268,34 @@ def draw_measuring_poses(r: dict[str, Any], steps: dict[str, dict[str, Any]],
     frame = "part frame" if "part" in steps or config is not None else "cell frame"
     T_w_cf = invert(T_cf_w0)
     cams = [(str(p.get("name")), T_w_cf @ np.asarray(p["T_cf_si"], dtype=float)) for p in r.get("poses") or []]
+    centres = np.array([T[:3, 3] for _, T in cams]).reshape(-1, 3)
+    ends = np.array([_axis_end(T) for _, T in cams]).reshape(-1, 3)
     points = config.part.points_w if config is not None else np.zeros((0, 3))
     names = config.part.point_names if config is not None else ()
-    image = Image.new("RGB", PLAN_SIZE, BACKGROUND)
-    draw = ImageDraw.Draw(image)
-    font = ImageFont.load_default()
-    draw.text((16, 10), f"measuring poses over the part ({frame}, mm): camera centres, line of sight to the part "
-                        f"plane; black: featured holes", fill=TEXT, font=font)
-    half = PLAN_SIZE[0] // 2
-    for k, (axes, label) in enumerate((((0, 1), "from above: x right, y up"), ((0, 2), "from the side: x right, "
-                                                                                     "z up"))):
-        ends = [_axis_end(T) for _, T in cams]
-        every = np.vstack([points, *(T[:3, 3] for _, T in cams), *ends, np.zeros(3)])[:, axes]
-        box = (k * half + 40, 50, (k + 1) * half - 30, PLAN_SIZE[1] - 40)
-        to_px = _fit(box, every)
-        draw.rectangle(box, outline=GRID)
-        draw.text((box[0] + 6, box[1] + 6), label, fill=TEXT, font=font)
+    figure = new_figure(PLAN_SIZE)
+    panels = figure.subplots(1, 2)
+    for ax, (a, b, view) in zip(panels, ((0, 1, "from above: x right, y up"), (0, 2, "from the side: x right, z up")),
+                                strict=True):
+        span = float(np.ptp(np.vstack([points, centres, ends, np.zeros((1, 3))])[:, [a, b]], axis=0).max())
         if len(points) >= 3:
-            hull = _hull(points[:, axes])
-            draw.polygon([to_px(p) for p in hull], outline=REF, fill=(240, 240, 240))
-        for name, p in zip(names, points, strict=True):
-            x, y = to_px(p[list(axes)])
-            draw.ellipse([x - 4, y - 4, x + 4, y + 4], fill=TEXT)
-            draw.text((x + 6, y - 14), name, fill=TEXT, font=font)
-        for i, ((name, T), end) in enumerate(zip(cams, ends, strict=True)):
-            colour = POSE_COLOURS[i % len(POSE_COLOURS)]
-            c, e = to_px(T[:3, 3][list(axes)]), to_px(end[list(axes)])
-            draw.line([c, e], fill=colour, width=2)
-            draw.ellipse([c[0] - 6, c[1] - 6, c[0] + 6, c[1] + 6], fill=colour)
-            draw.text((c[0] + 8, c[1] + 4), name, fill=colour, font=font)
-    return image
+            hull = outline(points[:, [a, b]])
+            ax.fill(hull[:, 0], hull[:, 1], facecolor="0.93", edgecolor=REFERENCE, label="part outline (holes)")
+        if len(points):
+            ax.plot(points[:, a], points[:, b], "o", color="black", markersize=5, label="featured hole")
+            label_points(ax, names, points[:, [a, b]], "black", span)
+        for i, ((name, _), c, e) in enumerate(zip(cams, centres, ends, strict=True)):
+            colour = SERIES[i % len(SERIES)]
+            ax.plot([c[a], e[a]], [c[b], e[b]], "-", color=colour, linewidth=1.5)
+            ax.plot(c[a], c[b], "o", color=colour, markersize=7, label=f"{name}: camera and its line of sight")
+        label_points(ax, [name for name, _ in cams], centres[:, [a, b]], "0.2", span)
+        ax.margins(0.08)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_xlabel(f"x ({frame}, mm)")
+        ax.set_ylabel(f"{'yz'[b - 1]} ({frame}, mm)")
+        ax.set_title(view)
+    figure_legend(figure, *panels, columns=3)
+    figure.suptitle(f"Measuring poses over the part ({frame}, mm, to scale)")
+    return figure
 
 
 def uncertainty_grid(r: dict[str, Any], steps: dict[str, dict[str, Any]], config: CellConfig
@@ -297,70 +331,50 @@ def uncertainty_grid(r: dict[str, Any], steps: dict[str, dict[str, Any]], config
 
 
 def draw_uncertainty_map(r: dict[str, Any], steps: dict[str, dict[str, Any]], config: CellConfig | None
-                         ) -> Image.Image | None:
-    """The calibrated cell's uncertainty map: the predicted sigma over the part's x-y shifts (two heat maps)."""
+                         ) -> Figure | None:
+    """The calibrated cell's uncertainty map: the predicted sigma over the part's x-y shifts (two colour maps)."""
     grid = uncertainty_grid(r, steps, config) if config is not None else None
-    if grid is None:
-        return None
-    xs, ys, sigma_mm, sigma_deg = grid
-    image = Image.new("RGB", PLAN_SIZE, BACKGROUND)
-    draw = ImageDraw.Draw(image)
-    font = ImageFont.load_default()
-    draw.text((16, 10), "the calibrated cell's predicted sigma (Eq. 29, pixel noise and robot repeatability of "
-                        "[layout]) with the part shifted in x and y (part frame, mm)", fill=TEXT, font=font)
-    half = PLAN_SIZE[0] // 2
-    for k, (values, label) in enumerate(((sigma_mm, "sigma of the grasp point (mm)"),
-                                         (sigma_deg, "sigma of the rotation (deg)"))):
-        box = (k * half + 70, 60, (k + 1) * half - 110, PLAN_SIZE[1] - 60)
-        low, high = float(values.min()), float(values.max())
-        cw, ch = (box[2] - box[0]) / len(xs), (box[3] - box[1]) / len(ys)
-        for iy in range(len(ys)):
-            for ix in range(len(xs)):
-                x0, y0 = box[0] + ix * cw, box[3] - (iy + 1) * ch
-                colour = _heat((values[iy, ix] - low) / (high - low) if high > low else 0.5)
-                draw.rectangle([x0, y0, x0 + cw, y0 + ch], fill=colour)
-        draw.rectangle(box, outline=AXIS)
-        draw.text((box[0], box[1] - 18), label, fill=TEXT, font=font)
-        for v, x in ((xs[0], box[0]), (xs[-1], box[2] - 24)):
-            draw.text((x, box[3] + 6), f"x {v:+.0f}", fill=TEXT, font=font)
-        for v, y in ((ys[0], box[3] - 12), (ys[-1], box[1])):
-            draw.text((box[0] - 56, y), f"y {v:+.0f}", fill=TEXT, font=font)
-        bar = (box[2] + 14, box[1], box[2] + 30, box[3])
-        for j in range(40):
-            y0 = bar[3] - (j + 1) * (bar[3] - bar[1]) / 40
-            draw.rectangle([bar[0], y0, bar[2], y0 + (bar[3] - bar[1]) / 40], fill=_heat(j / 39))
-        draw.text((bar[2] + 4, bar[1]), f"{high:.4g}", fill=TEXT, font=font)
-        draw.text((bar[2] + 4, bar[3] - 12), f"{low:.4g}", fill=TEXT, font=font)
-    return image
+    return None if grid is None else _uncertainty_figure(*grid)
 
 
-def draw_repeatability(r: dict[str, Any], *_: Any) -> list[Image.Image]:
-    image = Image.new("RGB", CHART_SIZE, BACKGROUND)
-    draw = ImageDraw.Draw(image)
-    draw.text((MARGIN[0], 12), f"repeatability of {_v(r.get('n'))} measurements: sigma per axis (bars) beside the "
-                               f"planner's predicted sigma (grey line)", fill=TEXT, font=ImageFont.load_default())
-    half = CHART_SIZE[0] // 2
-    for k, (key, pred, unit, colour) in enumerate((("sigma_mm", "predicted_sigma_mm", "mm", MM),
-                                                   ("sigma_deg", "predicted_sigma_deg", "deg", DEG))):
-        box = (k * half + 70, MARGIN[1], (k + 1) * half - 20, CHART_SIZE[1] - MARGIN[3])
+@draw_style
+def draw_repeatability(r: dict[str, Any], *_: Any) -> list[Figure]:
+    figure = new_figure(CHART_SIZE)
+    for ax, (key, pred, unit, colour, labels, what) in zip(figure.subplots(1, 2), (
+            ("sigma_mm", "predicted_sigma_mm", "mm", MM, ("x", "y", "z"), "position"),
+            ("sigma_deg", "predicted_sigma_deg", "deg", DEG, ("rx", "ry", "rz"), "rotation")), strict=True):
         values = [float(v) for v in r.get(key) or []]
-        labels = ["x", "y", "z"] if unit == "mm" else ["rx", "ry", "rz"]
-        _bar_panel(draw, box, labels[:len(values)], values, unit, colour, reference=r.get(pred),
-                   reference_label="predicted")
-    return [image]
+        bar_chart(ax, labels[:len(values)], values, label="measured σ", colour=colour,
+                  reference=_number(r.get(pred)), reference_label=f"planner's predicted σ, {_v(r.get(pred))} {unit}")
+        ax.set_xlabel(f"{what} axis")
+        ax.set_ylabel(f"σ of the {what} ({unit})")
+        ax.set_title(f"{what} ({unit})")
+        legend(ax)
+    figure.suptitle(f"{TITLES['verify']}: repeatability of {_v(r.get('n'))} measurements of the reference part")
+    return [figure]
 
 
-def draw_accuracy(r: dict[str, Any], *_: Any) -> list[Image.Image]:
+@draw_style
+def draw_accuracy(r: dict[str, Any], *_: Any) -> list[Figure]:
     rows = r.get("rows") or []
-    return [_bars(f"Table 3 per part pose: dT mm bars (tolerance {_v(r.get('tolerance_mm'))} mm, grey), dR deg dots "
-                  f"(right)", [str(i + 1) for i in range(len(rows))], [float(x.get("dT_mm", math.nan)) for x in rows],
-                  "mm", MM, dots=[float(x.get("dR_deg", math.nan)) for x in rows], dots_unit="deg",
-                  reference=r.get("tolerance_mm"), reference_label="tolerance")]
+    figure, ax = _chart(f"{TITLES['accuracy']}: errors per part pose against the tolerance")
+    bar_chart(ax, [str(i + 1) for i in range(len(rows))], [_number(x.get("dT_mm")) for x in rows],
+              label="dT, position (mm, left)", reference=_number(r.get("tolerance_mm")),
+              reference_label=f"tolerance, {_v(r.get('tolerance_mm'))} mm")
+    right = _dots(ax, [_number(x.get("dR_deg")) for x in rows], label="dR, rotation (deg, right)",
+                  reference=_number(r.get("tolerance_deg")),
+                  reference_label=f"tolerance, {_v(r.get('tolerance_deg'))} deg")
+    ax.set_xlabel("part pose (row of Table 3)")
+    ax.set_ylabel("dT: position error (mm)")
+    right.set_ylabel("dR: rotation error (deg)", color=DEG)
+    legend(ax, right)
+    return [figure]
 
 
-def draw_truth_errors(truth: dict[str, dict[str, float]]) -> Image.Image:
-    """Each step's error against the simulated truth as a fraction of the issue's target (1 = the target);
-    errors without a target are listed with their value."""
+@draw_style
+def draw_truth_errors(truth: dict[str, dict[str, float]]) -> Figure:
+    """Each step's error against the simulated truth as a fraction of its target (1 = the target); errors
+    without a target are listed with their value and no bar."""
     labels, values, texts = [], [], []
     for errors in truth.values():
         for key, value in errors.items():
@@ -368,11 +382,16 @@ def draw_truth_errors(truth: dict[str, dict[str, float]]) -> Image.Image:
             target = TRUTH_TARGETS.get(key)
             values.append(float(value) / target if target else math.nan)
             texts.append(_v(value))
-    return _bars("error against the simulated truth / the issue's target (1 = target; no bar: no target)", labels,
-                 values, "x target", MM, reference=1.0, reference_label="target", value_texts=texts)
+    figure, ax = _chart("Calibration against the simulated truth: each error as a fraction of its target")
+    bar_chart(ax, labels, values, label="error / target (value written above)", value_texts=texts,
+              reference=1.0, reference_label="the target")
+    ax.set_xlabel("error of a step (no bar: no target)")
+    ax.set_ylabel("error / target (1 = on target)")
+    legend(ax)
+    return figure
 
 
-_DRAW: dict[str, Callable[..., list[Image.Image | None]]] = {
+_DRAW: dict[str, Callable[..., list[Figure | None]]] = {
     "intrinsics": draw_intrinsics, "cell": draw_point_residuals("cell"), "base": draw_point_residuals("base"),
     "part": draw_point_residuals("part"), "sfi": draw_sfi, "verify": draw_repeatability, "accuracy": draw_accuracy}
 
@@ -380,73 +399,49 @@ _DRAW: dict[str, Callable[..., list[Image.Image | None]]] = {
 # --- drawing helpers -----------------------------------------------------------------------------
 
 
-def _bars(title: str, labels: Sequence[str], values: Sequence[float], unit: str, colour: tuple[int, int, int], *,
-          dots: Sequence[float] | None = None, dots_unit: str = "", reference: Any = None, reference_label: str = "",
-          value_texts: Sequence[str] | None = None) -> Image.Image:
-    image = Image.new("RGB", CHART_SIZE, BACKGROUND)
-    draw = ImageDraw.Draw(image)
-    draw.text((MARGIN[0], 12), title, fill=TEXT, font=ImageFont.load_default())
-    box = (MARGIN[0], MARGIN[1], CHART_SIZE[0] - MARGIN[2], CHART_SIZE[1] - MARGIN[3])
-    _bar_panel(draw, box, labels, values, unit, colour, dots=dots, dots_unit=dots_unit, reference=reference,
-               reference_label=reference_label, value_texts=value_texts)
-    return image
+def _chart(title: str) -> tuple[Figure, Axes]:
+    figure = new_figure(CHART_SIZE)
+    ax = figure.add_subplot()
+    ax.set_title(title)
+    return figure, ax
 
 
-def _bar_panel(draw: ImageDraw.ImageDraw, box: tuple[float, float, float, float], labels: Sequence[str],
-               values: Sequence[float], unit: str, colour: tuple[int, int, int], *, dots: Sequence[float] | None = None,
-               dots_unit: str = "", reference: Any = None, reference_label: str = "",
-               value_texts: Sequence[str] | None = None) -> None:
-    font = ImageFont.load_default()
-    finite = [v for v in values if math.isfinite(v)]
-    ref = float(reference) if isinstance(reference, int | float) and math.isfinite(reference) else None
-    top = nice_top(max(finite + ([ref] if ref is not None else []), default=0.0))
-    left, upper, right, lower = box
-    for k in range(5):
-        y = lower - (lower - upper) * k / 4
-        draw.line([left, y, right, y], fill=GRID)
-        draw.text((left - 56, y - 6), f"{top * k / 4:.3g}", fill=TEXT, font=font)
-    draw.rectangle(box, outline=AXIS)
-    draw.text((left - 56, upper - 20), unit, fill=TEXT, font=font)
-    n = max(len(values), 1)
-    step = (right - left) / n
-    every = max(1, math.ceil(n / 25))  # at most 25 labels along the axis
-    for i, (label, value) in enumerate(zip(labels, values, strict=True)):
-        x = left + (i + 0.5) * step
-        if math.isfinite(value):
-            y = lower - (lower - upper) * min(value / top, 1.05)
-            draw.rectangle([x - 0.35 * step, y, x + 0.35 * step, lower], fill=colour)
-            if value_texts is None and n <= 12:
-                draw.text((x - 0.35 * step, y - 13), f"{value:.3g}", fill=TEXT, font=font)
-        if value_texts is not None:
-            draw.text((x - 0.35 * step, lower - 14), value_texts[i], fill=TEXT, font=font)
-        if i % every == 0:
-            draw.text((x - 3 * len(label), lower + 6 + 12 * (i // every % 2 if n > 8 else 0)), label, fill=TEXT,
-                      font=font)
-    if ref is not None:
-        y = lower - (lower - upper) * ref / top
-        draw.line([left, y, right, y], fill=REF, width=2)
-        draw.text((right - 6 * len(reference_label) - 4, y - 14), reference_label, fill=REF, font=font)
-    if dots is not None:
-        finite_dots = [v for v in dots if math.isfinite(v)]
-        dtop = nice_top(max(finite_dots, default=0.0))
-        for k in range(5):
-            y = lower - (lower - upper) * k / 4
-            draw.text((right + 6, y - 6), f"{dtop * k / 4:.3g}", fill=DEG, font=font)
-        draw.text((right + 6, upper - 20), dots_unit, fill=DEG, font=font)
-        for i, value in enumerate(dots):
-            if math.isfinite(value):
-                x, y = left + (i + 0.5) * step, lower - (lower - upper) * value / dtop
-                draw.ellipse([x - 4, y - 4, x + 4, y + 4], fill=DEG)
+def _dots(ax: Axes, values: Sequence[float], *, label: str, reference: float | None = None,
+          reference_label: str = "") -> Axes:
+    """``values`` as dots on a right-hand axis of ``ax`` (with a dotted ``reference`` line), returned."""
+    right = ax.twinx()
+    right.grid(False)
+    right.plot(np.arange(len(values)), values, "o", color=DEG, markersize=6, label=label)
+    shown = list(values)
+    if reference is not None and math.isfinite(reference):
+        right.axhline(reference, color=DEG, linewidth=1.2, linestyle=":", label=reference_label)
+        shown.append(reference)
+    right.tick_params(axis="y", colors=DEG)
+    from_zero(right, shown)
+    return right
 
 
-def _heat(t: float) -> tuple[int, int, int]:
-    """Blue (0) through yellow (0.5) to red (1)."""
-    t = min(max(float(t), 0.0), 1.0)
-    if t < 0.5:
-        u = t / 0.5
-        return round(40 + u * 210), round(90 + u * 140), round(200 - u * 160)
-    u = (t - 0.5) / 0.5
-    return 250 - round(u * 40), 230 - round(u * 190), 40
+@draw_style
+def _uncertainty_figure(xs: np.ndarray, ys: np.ndarray, sigma_mm: np.ndarray, sigma_deg: np.ndarray) -> Figure:
+    figure = new_figure(PLAN_SIZE)
+    for ax, (values, what, unit) in zip(figure.subplots(1, 2), ((sigma_mm, "grasp point", "mm"),
+                                                               (sigma_deg, "rotation", "deg")), strict=True):
+        mesh = ax.pcolormesh(xs, ys, values, shading="nearest", cmap="viridis", vmin=float(values.min()),
+                             vmax=float(values.max()))
+        figure.colorbar(mesh, ax=ax, shrink=0.9).set_label(f"predicted σ of the {what} ({unit})")
+        ax.grid(False)
+        ax.set_aspect("equal")
+        ax.set_xlabel("part shifted in x (part frame, mm)")
+        ax.set_ylabel("part shifted in y (part frame, mm)")
+        ax.set_title(f"σ of the {what} ({unit})")
+    figure.suptitle("The calibrated cell's predicted σ (Eq. 29, pixel noise and robot repeatability of [layout]) "
+                    "over the envelope")
+    return figure
+
+
+def _number(value: Any) -> float:
+    """A finite float, or NaN (no bar, no line) for anything else."""
+    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else math.nan
 
 
 def _axis_end(T: np.ndarray) -> np.ndarray:
@@ -454,42 +449,6 @@ def _axis_end(T: np.ndarray) -> np.ndarray:
     z = T[:3, 2]
     s = -T[2, 3] / z[2] if abs(z[2]) > 1e-6 and -T[2, 3] / z[2] > 0 else 800.0
     return T[:3, 3] + min(s, 5000.0) * z
-
-
-def _fit(box: tuple[float, float, float, float], xy: np.ndarray) -> Callable[[np.ndarray], tuple[float, float]]:
-    low, high = xy.min(axis=0), xy.max(axis=0)
-    pad = 30.0
-    scale = min((box[2] - box[0] - 2 * pad) / max(high[0] - low[0], 1.0),
-                (box[3] - box[1] - 2 * pad) / max(high[1] - low[1], 1.0))
-    cx, cy = (box[0] + box[2]) / 2, (box[1] + box[3]) / 2
-    mx, my = (low + high) / 2
-
-    def to_px(p: np.ndarray) -> tuple[float, float]:
-        return cx + (float(p[0]) - mx) * scale, cy - (float(p[1]) - my) * scale
-
-    return to_px
-
-
-def _hull(xy: np.ndarray) -> list[np.ndarray]:
-    """Convex hull (monotone chain), counter-clockwise."""
-    pts = sorted(map(tuple, np.round(xy, 9)))
-    if len(pts) < 3:
-        return [np.array(p) for p in pts]
-
-    def cross(o: tuple, a: tuple, b: tuple) -> float:
-        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
-
-    lower: list[tuple] = []
-    upper: list[tuple] = []
-    for p in pts:
-        while len(lower) >= 2 and cross(lower[-2], lower[-1], p) <= 0:
-            lower.pop()
-        lower.append(p)
-    for p in reversed(pts):
-        while len(upper) >= 2 and cross(upper[-2], upper[-1], p) <= 0:
-            upper.pop()
-        upper.append(p)
-    return [np.array(p) for p in lower[:-1] + upper[:-1]]
 
 
 def _v(value: Any) -> str:

@@ -88,7 +88,7 @@ def calibrate(
            "tolerance_deg": tolerance_deg, "cell_method": cell_method}
     try:
         config_path, cfg, given = _check_invocation(step, from_step, config, sim, values, cli)
-        work = Path(work_dir) if work_dir is not None else config_path.with_name(config_path.stem + ".calibration")
+        work = Path(work_dir) if work_dir is not None else _default_work_dir(config_path)
         method = getattr(getattr(cfg, "cell_frame", None), "method", None)  # [cell_frame] method: a new session's
         session, options = open_session(work, config_path, sim, given, restart=restart,
                                         defaults={"cell_method": method} if method else {})
@@ -218,6 +218,15 @@ def _err(text: str) -> None:
 def _human_sink(json_out: bool) -> Callable[[str], None]:
     """Step summaries on standard output, or on standard error when standard output is for --json."""
     return _err if json_out else (lambda line: print(line, flush=True))
+
+
+def _default_work_dir(config_path: Path) -> Path:
+    """``CELL.calibration/`` beside the config; for the shipped simulated cell (``--sim`` without --config),
+    in the working directory: nothing is ever written beside an installed package's files."""
+    from monoguide.daemon.packaged import is_packaged
+
+    folder = config_path.stem + ".calibration"
+    return Path(folder) if is_packaged(config_path) else config_path.with_name(folder)
 
 
 def _check_invocation(step: str | None, from_step: str | None, config: Path | None, sim: bool,

@@ -21,8 +21,8 @@ import typer
 from monoguide.daemon.cmd_solve import _solve_one, _xyzabc
 from monoguide.daemon.config import load_cell_config
 from monoguide.daemon.console import stderr_console, stdout_console
-from monoguide.daemon.journal import JOURNAL_FILE, Journal, JournalEntryMissing, JournalError, JournalRow
-from monoguide.daemon.state_dir import STATE_DIR_HELP, existing_state_dir
+from monoguide.daemon.journal import JOURNAL_FILE, Journal, JournalEntryMissing, JournalError, JournalRow, OffsetIntent
+from monoguide.daemon.state_dir import STATE_DIR_HELP, StateDirInvalid, existing_state_dir
 from monoguide.solver import frames
 from monoguide.solver.errors import MonoguideError
 from monoguide.solver.pose import DEFAULT_FALSE_ALARM_RATE, ESTIMATORS
@@ -35,7 +35,7 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 
-StateDirOption = Annotated[Path | None, typer.Option("--state-dir", help=STATE_DIR_HELP, show_default=False)]
+StateDirOption = Annotated[str | None, typer.Option("--state-dir", help=STATE_DIR_HELP, show_default=False)]
 JsonOption = Annotated[bool, typer.Option("--json", help="JSON on standard output, for machines.")]
 LIST_COLUMNS = (  # header, width (negative: left-aligned)
     ("cycle", 6), ("finished", -19), ("job", 4), ("tag", 6), ("status", -24), ("rms px", 7), ("rot deg", 8),
@@ -57,7 +57,7 @@ class CycleWithoutRecord(JournalError):
     plc_code = 643
 
 
-def open_journal(given_state_dir: Path | None) -> Journal:
+def open_journal(given_state_dir: Path | str | None) -> Journal:
     """The journal of the state directory, which must exist and hold one (nothing is created)."""
     directory = existing_state_dir(given_state_dir)
     if not (directory / JOURNAL_FILE).is_file():
@@ -92,12 +92,13 @@ def print_cycle_lines(rows: list[JournalRow]) -> None:
 
 
 def reporting_errors(command: Callable[[], None]) -> None:
-    """Run ``command``; a monoguide error becomes one line ``CODE message`` on standard error and exit 1."""
+    """Run ``command``; a monoguide error becomes one line ``CODE message`` on standard error and exit 1 (2 for
+    a bad option such as an empty --state-dir)."""
     try:
         command()
     except MonoguideError as error:
         _print(stderr_console(), f"{error.code} {error.message}")
-        raise typer.Exit(1) from None
+        raise typer.Exit(2 if isinstance(error, StateDirInvalid) else 1) from None
 
 
 @app.command("list")
@@ -128,11 +129,13 @@ def show(
     def run() -> None:
         with open_journal(state_dir) as journal:
             row = journal.cycle(number)
+            intent = journal.intent(number)
             images = [journal.state_dir / path for path in row.image_paths]  # a stored absolute path stays
         if json_output:
-            _write_lines([json.dumps(dataclasses.asdict(row))])
+            _write_lines([json.dumps({**dataclasses.asdict(row),
+                                      "offset_intent": None if intent is None else dataclasses.asdict(intent)})])
         else:
-            _print_cycle(row, images)
+            _print_cycle(row, images, intent)
     reporting_errors(run)
 
 
@@ -242,7 +245,7 @@ def _difference(stored: dict[str, Any], today: dict[str, Any]) -> dict[str, Any]
     return difference
 
 
-def _print_cycle(row: JournalRow, images: list[Path]) -> None:
+def _print_cycle(row: JournalRow, images: list[Path], intent: OffsetIntent | None = None) -> None:
     out = stdout_console()
     outcome = "ok" if row.status == "ok" else f"{row.error_code} ({row.plc_code}): {row.error_message}"
     lines = [
@@ -250,6 +253,11 @@ def _print_cycle(row: JournalRow, images: list[Path]) -> None:
         f"  started {_local_time(row.started_at)}, finished {_local_time(row.finished_at)}"
         f" ({row.finished_at - row.started_at:.2f} s); job {_text(row.job)}, part tag {_text(row.part_tag)}",
         "  timings s: " + (", ".join(f"{stage} {s:.3f}" for stage, s in row.timings_s.items()) or "-"),
+        "  offset sent to the robot: " + ("no" if intent is None else
+                                          f"request {intent.sequence}, x y z mm, a b c deg: "
+                                          f"{_xyzabc(list(intent.registers))}; "
+                                          + (f"{intent.outcome}" + (", then cleared" if intent.cleared else "")
+                                             if intent.outcome else "NOT SETTLED: the robot may hold it")),
     ]
     result = row.result
     if result is not None and result.get("status") == "ok":

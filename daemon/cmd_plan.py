@@ -13,15 +13,15 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
-import cv2
 import numpy as np
 import typer
 from rich.markup import escape
 
 from monoguide.daemon.config import load_cell_config
 from monoguide.daemon.console import stderr_console, stdout_console
+from monoguide.daemon.figures import draw_style, new_figure, save_png
 from monoguide.daemon.plan_drawing import draw_layout
 from monoguide.daemon.plan_layout import CellLayout, cell_layout, planned_pose_names, write_config_with_layout
 from monoguide.daemon.plan_report import fig5_report, print_fig5, print_layout
@@ -32,6 +32,11 @@ from monoguide.solver.planning import LayoutAssessment, assess_layout, plan_layo
 from monoguide.solver.record import parse_record
 from monoguide.solver.synthetic import PAPER_ROOF_POINTS_W
 from monoguide.solver.uncertainty import predicted_covariance
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+MAP_SIZE = (820, 640)  # width, height px of the Fig. 5 map (--out without --layout)
 
 
 def _finite_positive(value: float | None) -> float | None:
@@ -236,16 +241,13 @@ def _record_layout(path: Path) -> dict:
         return {"path": str(path), "error": error.as_dict()}
 
 
-def _write_png(path: Path, picture: np.ndarray, errors) -> bool:
+def _write_png(path: Path, figure: Figure, errors) -> bool:
     try:
-        ok = bool(cv2.imwrite(str(path), picture))
-    except cv2.error as error:
-        ok, reason = False, str(error).strip().splitlines()[-1]
-    else:
-        reason = "the directory does not exist or is not writable"
-    if not ok:
-        errors.print(f"--out {escape(str(path))}: not written: {escape(reason)}")
-    return ok
+        save_png(figure, path)
+    except OSError as error:
+        errors.print(f"--out {escape(str(path))}: not written: {escape(error.strerror or str(error))}")
+        return False
+    return True
 
 
 def _fail(errors, what: str, error: MonoguideError, json_output: bool) -> None:
@@ -254,24 +256,34 @@ def _fail(errors, what: str, error: MonoguideError, json_output: bool) -> None:
         typer.echo(json.dumps({"status": "error", "error": {**error.as_dict(), "plc_code": error.plc_code}}))
 
 
-def _render_map(fig5, width: int, height: int) -> np.ndarray:
-    """The Fig. 5 map as a false-colour picture of the image quadrant (centre at the top left), log scale,
-    with the quarter-from-the-edge position marked; two image pixels per picture pixel."""
-    scale = 2
-    w, h = width // (2 * scale), height // (2 * scale)
-    values = np.log(fig5.sigma_trans_mm)
-    grid = cv2.resize(values.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
-    norm = ((grid - grid.min()) / max(float(np.ptp(grid)), 1e-12) * 255).astype(np.uint8)
-    picture = cv2.applyColorMap(255 - norm, cv2.COLORMAP_VIRIDIS)
-    cv2.circle(picture, (int(width / 4 / scale), int(height / 4 / scale)), 6, (255, 255, 255), 2)
-    lo, hi = float(fig5.sigma_trans_mm.min()), float(fig5.sigma_trans_mm.max())
-    lines = (
-        "image quadrant: centre top left; colour: log sigma of the part position",
-        f"per px of centre noise: {hi:.2f} mm (dark, near centre) .. {lo:.2f} mm (bright)",
-        "o: hole a quarter of the image from the edge (the paper's recommendation)",
-    )
-    for k, text in enumerate(lines):
-        y = h - 10 - 18 * (len(lines) - 1 - k)
-        cv2.putText(picture, text, (8, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
-    return picture
+@draw_style
+def _render_map(fig5, width: int, height: int) -> Figure:
+    """The Fig. 5 map of a ``width`` x ``height`` px camera: the sigma of the part position per px of centre
+    noise as every hole moves outwards from the image centre (top left) over the image quadrant, on a log
+    colour scale from the map's smallest to its largest value, with the quarter-from-the-edge position marked
+    (the paper draws the whole image; its quadrants are mirror images)."""
+    from matplotlib.colors import LogNorm
 
+    figure = new_figure(MAP_SIZE)
+    ax = figure.add_subplot()
+    u, v, sigma = fig5.offsets_u_px, fig5.offsets_v_px, fig5.sigma_trans_mm
+    lo, hi = float(sigma.min()), float(sigma.max())
+    image = ax.pcolormesh(u, v, sigma, shading="gouraud", cmap="viridis_r",
+                          norm=LogNorm(vmin=lo, vmax=hi if hi > lo else lo * 1.001))  # smooth between the samples
+    ax.set_xlim(0.0, width / 2)  # the whole quadrant, the centre top left and v down as in the image; blank:
+    ax.set_ylim(height / 2, 0.0)  # the centre itself and the margin at the border, where nothing is computed
+    ax.set_aspect("equal")
+    bar = figure.colorbar(image, ax=ax, label="σ of the part position per px of centre noise (mm, log scale)")
+    ticks = [m * 10.0**k for k in range(math.floor(math.log10(lo)), math.ceil(math.log10(hi)) + 1)
+             for m in (1.0, 2.0, 5.0) if lo <= m * 10.0**k <= hi]
+    bar.set_ticks(ticks, labels=[f"{t:g}" for t in ticks])
+    bar.minorticks_off()
+    ax.plot(width / 4, height / 4, "o", markersize=14, markerfacecolor="none", markeredgecolor="white",
+            markeredgewidth=2, label="hole a quarter of the image from the edge (the paper's recommendation)")
+    ax.grid(False)
+    ax.set_xlabel("every hole's distance from the image centre along u (px)")
+    ax.set_ylabel("every hole's distance from the image centre along v (px)")
+    ax.set_title(f"Fig. 5: predicted σ of the part position as the holes move outwards from the image centre\n"
+                 f"per px of centre noise: {hi:.2f} mm near the centre .. {lo:.2f} mm")
+    ax.legend(loc="lower right", facecolor="0.3", labelcolor="white", edgecolor="none")
+    return figure

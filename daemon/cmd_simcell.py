@@ -10,12 +10,20 @@ parts, then only beats its heartbeat). Where each device listens goes to stdout 
 
 The fault channel: each line of standard input is a command (end of input is fine; the cell runs on):
 ``plc <fault>`` goes to the simulated PLC's standard input, ``robot <fault>`` to the simulated robot
-controller's (both at run time; ``none`` clears), ``camera <failure> [count]`` into the state file as
+controller's (both at run time; ``none`` clears; ``robot cut-after-offset MS [DOWN_S]`` takes its numbers),
+``camera <failure> [count]`` into the state file as
 ``"camera_fault": {"failure", "count", "serial"}`` for the daemon's in-process simulated camera (a new
 serial per command, so that it applies once). An accepted command is echoed on stdout as ``fault: <device>
 <fault>``, a refused one on stderr as ``fault error: <reason>``. The names are the simulator's own
 (:data:`FAULT_COMMANDS`; runtime code does not import the simulator, a test checks that they agree).
 What the service reports for each: ``docs/plc-interface.md``, "The simulated PLC and its faults".
+
+The grasp: with a simulated robot, the simulated PLC gives the grasp go once it has read DONE + RESULT_OK and
+acknowledged the result (it prints ``GRASP {...}``); sim-cell forwards it to the robot controller (``grasp`` on its
+standard input), whose program runs the grasp only while its offset is valid and refuses it otherwise
+(``docs/robot-interface.md``, the grasp interlock); the controller prints the outcome, ``GRASP {...}``, which
+sim-cell passes back to the PLC (``grasped {...}``: the line waits for it before the next part) and echoes as
+``grasp: {...}``.
 
 One sim-cell per state file: the claim is an exclusive ``flock`` on ``<state file>.lock``, held for the
 process's lifetime (the kernel releases it when the process ends, however it ends), so two sim-cells
@@ -27,6 +35,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import logging
+import math
 import os
 import select
 import signal
@@ -50,6 +59,8 @@ STOP_TIMEOUT_S = 3.0
 EXIT_DEVICE = 1
 EXIT_CONFIG = 2
 MAX_CAMERA_COUNT = 1000
+MAX_CUT_MS = 60_000.0  # robot cut-after-offset MS [DOWN_S]: MS 0..60000, DOWN_S above 0 up to 60 (the simulator's)
+GRASP_WAIT_S = 10.0  # the simulated PLC waits this long for the grasp's outcome before the next part
 
 # the faults each simulated device takes (drivers/sim/plc.py FAULTS, drivers/sim/robot_motion.py FAULT_MODES,
 # drivers/sim/camera.py FAILURES): copied, since runtime code never imports the simulator;
@@ -59,6 +70,9 @@ FAULT_COMMANDS: dict[str, tuple[str, ...]] = {
     "robot": ("none", "stall", "drop", "protective-stop", "never-reach", "no-ack", "program-stopped"),
     "camera": ("timeout", "disconnect", "black", "occluded", "glare"),
 }
+# the robot's one-shot faults (drivers/sim/robot_motion.py FAULT_ACTIONS): Stop/Play now, the cut after the next
+# offset (``robot cut-after-offset MS [DOWN_S]``); copied likewise, checked by tests/drivers/test_robot_faults.py
+ROBOT_ACTIONS: tuple[str, ...] = ("restart", "cut-after-offset")
 
 
 def sim_cell(
@@ -67,10 +81,11 @@ def sim_cell(
         Path | None, typer.Option("--state-file", help="where to write where the devices listen")
     ] = None,
     no_plc: Annotated[
-        bool, typer.Option("--no-plc", help="leave the PLC out: another server can listen where [plc] says")
+        bool, typer.Option("--no-plc", help="leave the PLC out: another server can listen where \\[plc] says")
     ] = False,
     truth_log: Annotated[
-        Path | None, typer.Option("--truth-log", help="one JSON line per part: its true pose, offsets, grasp error")
+        Path | None, typer.Option("--truth-log", help="one JSON line per part (its true pose, offset, grasp error) "
+                                                      "and per grasp")
     ] = None,
     parts: Annotated[
         int | None, typer.Option("--parts", min=0, help="the simulated PLC plays this many parts, then only beats "
@@ -78,7 +93,7 @@ def sim_cell(
     ] = None,
 ) -> None:
     """Start the simulated cell's device processes and keep them running until Ctrl-C or SIGTERM; fault commands
-    on standard input (plc|robot <fault>, camera <failure> [count])."""
+    on standard input (plc|robot <fault>, camera <failure> \\[count])."""
     stop = {"signal": 0}
 
     def _on_signal(signum: int, _frame: object) -> None:
@@ -120,7 +135,7 @@ def sim_cell(
             robot = _start_robot(cfg, cell, *robot_files, truth_log)
             children.append(robot.process)
             state["robot"] = robot.state
-        plc = None if no_plc or cfg.plc is None else _start_plc(cfg, parts)
+        plc = None if no_plc or cfg.plc is None else _start_plc(cfg, parts, grasp=robot is not None)
         if plc is not None:
             children.append(plc.process)
             host, _, port = plc.address.rpartition(":")
@@ -142,13 +157,14 @@ def sim_cell(
         sys.stdout.flush()
         faults = _FaultChannel(cfg, state_path, state, plc, robot.process if robot is not None else None)
         plc_lines = _Lines(plc.process.stdout.fileno()) if plc is not None and plc.process.stdout else None
+        robot_lines = _Lines(robot.process.stdout.fileno()) if robot is not None and robot.process.stdout else None
         commands = _Lines(0) if _stdin_open() else None
         while not stop["signal"]:
             for child in children:
                 if child.poll() is not None:
                     raise DeviceDisconnected(f"simulated device (pid {child.pid}) ended with status "
                                              f"{child.returncode}")
-            _serve_once(plc_lines, commands, faults)
+            _serve_once(plc_lines, commands, faults, robot_lines)
         typer.echo(f"stopping ({signal.Signals(stop['signal']).name})", err=True)
     except OSError as exc:  # a state or targets file that cannot be written where the config puts it
         error = ConfigError(f"cannot write {exc.filename or 'a sim-cell file'}: {exc.strerror or exc}")
@@ -264,9 +280,10 @@ def _start_robot(cfg: CellConfig, cell: Any, spec_path: Path, truth_path: Path,
                                            "truth": str(truth_path)})
 
 
-def _start_plc(cfg: CellConfig, parts: int | None) -> _Started:
+def _start_plc(cfg: CellConfig, parts: int | None, grasp: bool = False) -> _Started:
     """Start the simulated line PLC on ``[plc] host:port`` with the block at ``base`` for ``unit``, playing parts
-    (``parts``: that many, then only its heartbeat); its standard input takes the fault commands."""
+    (``parts``: that many, then only its heartbeat); its standard input takes the fault commands. ``grasp``: it
+    gives the grasp go after each good result and waits for the robot's answer (a simulated robot is there)."""
     p = cfg.plc
     assert p is not None
     argv = [sys.executable, "-m", "monoguide.drivers.sim.plc", "--host", p.host, "--port", str(p.port),
@@ -274,6 +291,8 @@ def _start_plc(cfg: CellConfig, parts: int | None) -> _Started:
             "--heartbeat-period", str(min(0.5, p.heartbeat_timeout_s / 4))]
     if parts is not None:
         argv += ["--parts", str(parts)]
+    if grasp:
+        argv += ["--grasp-wait", str(GRASP_WAIT_S)]
     return _start(argv, "plc", stdin=subprocess.PIPE)
 
 
@@ -314,10 +333,10 @@ def _stdin_readable_now() -> bool:
 
 
 def _serve_once(plc_lines: _Lines | None, commands: _Lines | None, faults: _FaultChannel,
-                wait_s: float = 0.1) -> None:
-    """Wait up to ``wait_s`` for the PLC's per-part records (echoed; its stdout pipe must not fill up) and for
-    fault commands on standard input (handled)."""
-    watched = {lines.fd: lines for lines in (plc_lines, commands) if lines is not None and lines.open}
+                robot_lines: _Lines | None = None, wait_s: float = 0.1) -> None:
+    """Wait up to ``wait_s`` for the PLC's per-part records (echoed; its stdout pipe must not fill up) and grasp
+    goes (to the robot), the robot's grasp outcomes (to the PLC, echoed) and fault commands on standard input."""
+    watched = {lines.fd: lines for lines in (plc_lines, commands, robot_lines) if lines is not None and lines.open}
     if commands is not None and commands.fd in watched and not _stdin_readable_now():
         del watched[commands.fd]
     if not watched:
@@ -326,11 +345,31 @@ def _serve_once(plc_lines: _Lines | None, commands: _Lines | None, faults: _Faul
     ready, _, _ = select.select(list(watched), [], [], wait_s)
     for fd in ready:
         for line in watched[fd].read():
-            if watched[fd] is plc_lines:
+            if watched[fd] is plc_lines and line.startswith(GRASP_LINE):
+                _relay(faults, "robot", GRASP_GO)  # the PLC's go, for the robot program
+            elif watched[fd] is plc_lines:
                 typer.echo(f"plc: {line}")
+            elif watched[fd] is robot_lines and line.startswith(GRASP_LINE):
+                outcome = line[len(GRASP_LINE):].strip()
+                _relay(faults, "plc", f"{GRASP_ANSWER} {outcome}")  # the robot's answer, for the line
+                typer.echo(f"grasp: {outcome}")
+            elif watched[fd] is robot_lines:
+                log.info("simulated robot said: %s", line)
             else:
                 faults.handle(line)
         sys.stdout.flush()
+
+
+def _relay(faults: _FaultChannel, device: str, line: str) -> None:
+    try:
+        faults.relay(device, line)
+    except ValueError as exc:  # the device is gone: the loop notices and ends
+        log.warning("%s", exc)
+
+
+GRASP_LINE = "GRASP "  # the simulated PLC's go and the robot's outcome, each on its standard output
+GRASP_GO = "grasp"  # to the robot controller's standard input
+GRASP_ANSWER = "grasped"  # to the simulated PLC's standard input, with the outcome's JSON
 
 
 class _FaultChannel:
@@ -362,7 +401,7 @@ class _FaultChannel:
         device, *words = text.split()
         if device not in FAULT_COMMANDS:
             raise ValueError(f"{text!r}: unknown device {device!r}; expected one of {', '.join(FAULT_COMMANDS)}")
-        names = FAULT_COMMANDS[device]
+        names = FAULT_COMMANDS[device] + (ROBOT_ACTIONS if device == "robot" else ())
         if not words:
             raise ValueError(f"{text!r}: which fault? {device} takes {', '.join(names)}")
         fault, *rest = words
@@ -370,18 +409,26 @@ class _FaultChannel:
             raise ValueError(f"{text!r}: unknown {device} fault {fault!r}; expected one of {', '.join(names)}")
         if device == "camera":
             return device, fault, self._camera(text, fault, rest)
-        if rest:
+        if device == "robot" and fault == "cut-after-offset":
+            _check_cut(text, rest)
+        elif rest:
             raise ValueError(f"{text!r}: {device} {fault} takes nothing more, got {' '.join(rest)!r}")
+        if self.children[device] is None:
+            raise ValueError(f"{text!r}: {self.absent[device]}")
+        self.relay(device, " ".join([fault, *rest]), text)
+        return device, fault, None
+
+    def relay(self, device: str, line: str, what: str | None = None) -> None:
+        """``line`` to the standard input of the simulated ``device`` (none in this cell: nothing to do)."""
         child = self.children[device]
         if child is None:
-            raise ValueError(f"{text!r}: {self.absent[device]}")
+            return
         try:
             assert child.stdin is not None
-            child.stdin.write(fault + "\n")
+            child.stdin.write(line + "\n")
             child.stdin.flush()
         except OSError as exc:
-            raise ValueError(f"{text!r}: the simulated {device} (pid {child.pid}) is gone: {exc}") from exc
-        return device, fault, None
+            raise ValueError(f"{what or line!r}: the simulated {device} (pid {child.pid}) is gone: {exc}") from exc
 
     def _camera(self, text: str, failure: str, rest: list[str]) -> int:
         if not self.camera_follows:
@@ -397,6 +444,18 @@ class _FaultChannel:
         except OSError as exc:
             raise ValueError(f"{text!r}: cannot write the state file {self.state_path}: {exc}") from exc
         return count
+
+
+def _check_cut(text: str, numbers: list[str]) -> None:
+    """``robot cut-after-offset MS [DOWN_S]``: MS 0..60000 ms, DOWN_S above 0 up to 60 s (default 1)."""
+    try:
+        values = [float(v) for v in numbers]
+    except ValueError:
+        values = []
+    if not 1 <= len(numbers) <= 2 or len(values) != len(numbers) or not all(math.isfinite(v) for v in values) \
+            or not 0 <= values[0] <= MAX_CUT_MS or (len(values) == 2 and not 0 < values[1] <= MAX_CUT_MS / 1000):
+        raise ValueError(f"{text!r}: robot cut-after-offset takes MS (0 to {MAX_CUT_MS:g}) and optionally DOWN_S "
+                         f"(seconds, above 0 up to {MAX_CUT_MS / 1000:g}; default 1)")
 
 
 class _Started:

@@ -36,11 +36,10 @@ MAX_CYCLE_ROWS = 60  # the human per-cycle table is left out for longer runs (--
 
 
 def default_config() -> Path:
-    """``config/sim-cell.toml`` of the working directory, else of the source tree monoguide runs from."""
-    here = Path("config/sim-cell.toml")
-    if here.exists():
-        return here
-    return Path(__file__).resolve().parents[1] / "config" / "sim-cell.toml"
+    """The simulated paper roof cell that monoguide ships (``config/sim-cell.toml``, wherever it is installed)."""
+    from monoguide.daemon.packaged import sim_cell_config
+
+    return sim_cell_config()
 
 
 def simulate(

@@ -102,6 +102,9 @@ def _print_report(report: dict[str, Any]) -> None:
         word = "state" if report["liveness"].running else "last state"
         lines.append(f"  {word}: {service.state} since {_clock(service.since)} ({now - service.since:.0f} s),"
                      f" status written {now - service.updated_at:.1f} s ago")
+        if service.fault:
+            lines.append(f"  FAULT: {service.fault.get('code')} ({service.fault.get('plc_code')}): "
+                         f"{service.fault.get('message')}")
         for name, device in service.devices.items():
             error = device.last_error
             trouble = "" if not error else f", last error {error.get('code')}: {error.get('message')}"

@@ -8,7 +8,11 @@ angles in degrees. Relative paths are relative to the config file. The keys are 
 
 Strict: a bad file raises a :class:`ConfigError` naming the key, the value and why; a required key that
 is missing is :class:`ConfigMissingKey` (never a zero), an unknown key or section is
-:class:`ConfigUnknownKey` / :class:`ConfigUnknownSection` with the closest known name.
+:class:`ConfigUnknownKey` / :class:`ConfigUnknownSection` with the closest known name. Every duration and
+count has a documented range (:data:`BOUNDS`); names are non-empty and unique; hosts are addresses or host
+names; a cell that runs cycles (it has ``[robot]`` or ``[plc]``) gives the pose solver the redundancy it needs
+(:data:`MIN_OBSERVATIONS` hole images of at least three holes not on one line). A command that needs an
+optional section asks for it with :func:`require_sections`.
 
 A later issue adds its section in three steps: a frozen dataclass, a reader ``_name(t: ConfigTable)``
 below, and an entry in :data:`OPTIONAL_SECTIONS` together with a ``CellConfig`` field of the same name
@@ -19,7 +23,7 @@ from __future__ import annotations
 
 import os
 import tomllib
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, fields
 from datetime import datetime
 from pathlib import Path
@@ -29,6 +33,7 @@ import numpy as np
 
 from monoguide.daemon.config_reader import (
     MATRIX_TOL,
+    Bounds,
     ConfigMissingKey,
     ConfigTable,
     ConfigUnknownKey,
@@ -39,12 +44,16 @@ from monoguide.drivers.plc_registers import BLOCK_SIZE as PLC_BLOCK_SIZE
 from monoguide.drivers.plc_registers import WORD_ORDERS as PLC_WORD_ORDERS
 from monoguide.solver.calibration.target import TargetMarks, grid_marks
 from monoguide.solver.camera import CameraModel
+from monoguide.solver.consistency import MIN_OBSERVATIONS
 from monoguide.solver.errors import RecordError
 from monoguide.solver.frames import compose
 from monoguide.solver.planning import DeviationEnvelope, LayoutConstraints
 
 __all__ = [
+    "BOUNDS",
     "MATRIX_TOL",
+    "MAX_MEASURING_POSES",
+    "MIN_OBSERVATIONS",
     "OPTIONAL_SECTIONS",
     "REQUIRED_SECTIONS",
     "CellConfig",
@@ -54,6 +63,7 @@ __all__ = [
     "ConfigUnknownSection",
     "default_sim_state_file",
     "load_cell_config",
+    "require_sections",
 ]
 
 CAMERA_BACKENDS = ("genicam", "sim")
@@ -61,6 +71,38 @@ TRACKER_BACKENDS = ("serial", "sim")
 ROBOT_BACKENDS = ("ur", "kuka", "sim-ur", "sim-kuka")
 ROBOT_DEFAULT_PORTS = {"ur": 30004, "kuka": 54600}  # RTDE (fixed); the EKI channel's <PORT>
 INTRINSICS_KEYS = tuple(f.name for f in fields(CameraModel))  # width, height, fx, ..., p2: all required
+
+# The documented range (docs/cell-config.md) of every duration and count, "section.key" -> Bounds; the loader
+# refuses a value outside it (NaN and infinities included), naming the key, the value and the range.
+BOUNDS: dict[str, Bounds] = {
+    "camera.grab_timeout_s": Bounds(0.05, 60.0, "s"),
+    "camera.exposure_us": Bounds(1.0, 10_000_000.0, "us"),
+    "camera.intrinsics.width": Bounds(1, 65535, "px"),
+    "camera.intrinsics.height": Bounds(1, 65535, "px"),
+    "tracker.baud": Bounds(300, 4_000_000),
+    "tracker.timeout_s": Bounds(0.05, 600.0, "s"),
+    "robot.port": Bounds(1, 65535),
+    "robot.connect_timeout_s": Bounds(0.05, 60.0, "s"),
+    "robot.move_timeout_s": Bounds(0.05, 600.0, "s"),
+    # a written offset's acknowledgement is waited out on SIGTERM: well inside systemd's TimeoutStopSec=30s
+    "robot.ack_timeout_s": Bounds(0.05, 10.0, "s"),
+    "robot.stale_timeout_s": Bounds(0.05, 10.0, "s"),
+    "robot.rtde_frequency_hz": Bounds(1.0, 500.0, "Hz"),  # a UR controller sends at most 500 Hz
+    "robot.sim_move_time_s": Bounds(0.0, 60.0, "s"),
+    "plc.port": Bounds(1, 65535),
+    "plc.unit": Bounds(1, 255),
+    "plc.base": Bounds(0, 65536 - PLC_BLOCK_SIZE),  # the block's 34 registers must fit
+    "plc.heartbeat_timeout_s": Bounds(0.1, 60.0, "s"),  # the service reads the heartbeat every 20 ms
+    "plc.timeout_s": Bounds(0.05, 60.0, "s"),
+    "plc.ack_timeout_s": Bounds(0.05, 600.0, "s"),
+    "service.images_max_mb": Bounds(1.0, 10_000_000.0, "MB"),
+    "service.images_max_age_days": Bounds(0.01, 3650.0, "days"),
+    "sim.exposure_us_nominal": Bounds(1.0, 10_000_000.0, "us"),
+    "calibration_target.marks_cols": Bounds(2, 1000),
+    "calibration_target.marks_rows": Bounds(2, 1000),
+}
+MAX_MEASURING_POSES = 100  # the robot programs number them 1..100; 101 and up are the base-calibration poses
+COLLINEAR_MM = 1e-3  # holes within this of one line leave the rotation about it unsolved
 
 
 @dataclass(frozen=True)
@@ -277,7 +319,33 @@ def load_cell_config(path: str | os.PathLike[str]) -> CellConfig:
     optional = {key: read(root.table(key)) if root.has(key) else None for key, read in OPTIONAL_SECTIONS.items()}
     config = CellConfig(path, name, camera, part, reference, poses, **optional)
     _check_backends(config)
+    if config.robot is not None or config.plc is not None:  # a cell that runs cycles
+        _check_redundancy(config)
     return config
+
+
+# what each optional section is to a command that needs it (require_sections' message)
+_SECTION_ROLES = {
+    "robot": "the robot controller",
+    "plc": "the line's PLC, a Modbus TCP server",
+    "tracker": "the laser tracker",
+    "sim": "the simulated cell",
+    "layout": "what the measuring poses are planned for",
+    "cell_frame": "the benchmark nests of the cell frame",
+    "calibration_target": "the calibration target",
+}
+
+
+def require_sections(config: CellConfig, sections: Iterable[str], *, command: str) -> None:
+    """Refuse a config without an optional section that ``monoguide <command>`` needs: :class:`ConfigMissingKey`
+    naming the section and the command (``require_sections(cfg, ("robot", "plc"), command="run")``)."""
+    for section in sections:
+        if section not in OPTIONAL_SECTIONS:
+            raise ValueError(f"{section!r} is not an optional section of the cell config: {sorted(OPTIONAL_SECTIONS)}")
+        if getattr(config, section) is None:
+            role = _SECTION_ROLES.get(section, section)
+            raise ConfigMissingKey(f"{config.path}: [{section}]: missing, a section `monoguide {command}` needs "
+                                   f"({role})")
 
 
 def default_sim_state_file() -> Path:
@@ -290,7 +358,7 @@ def default_sim_state_file() -> Path:
 
 
 def _cell(t: ConfigTable) -> str:
-    name = t.text("name")
+    name = t.text("name", nonempty=True)
     t.done()
     return name
 
@@ -318,11 +386,11 @@ def _camera(t: ConfigTable) -> CameraConfig:
         cti=cti,
         serial=t.text("serial", None),
         user_name=t.text("user_name", None),
-        pixel_format=t.text("pixel_format", "Mono8"),
-        exposure_us=t.number("exposure_us", None, positive=True),
+        pixel_format=t.text("pixel_format", "Mono8", nonempty=True),
+        exposure_us=_number(t, "exposure_us", None),
         gain_db=t.number("gain_db", None),
         region=region,
-        grab_timeout_s=t.number("grab_timeout_s", 2.0, positive=True),
+        grab_timeout_s=_number(t, "grab_timeout_s", 2.0),
         T_f_c=t.matrix("T_f_c", None),
     )
     t.done()
@@ -331,8 +399,7 @@ def _camera(t: ConfigTable) -> CameraConfig:
 
 def _intrinsics(t: ConfigTable) -> CameraModel:
     """Every coefficient is required: a camera calibrated without distortion says ``k1 = 0.0``."""
-    values = {key: t.integer(key, minimum=1) if key in ("width", "height") else t.number(key)
-              for key in INTRINSICS_KEYS}
+    values = {key: _integer(t, key) if key in ("width", "height") else t.number(key) for key in INTRINSICS_KEYS}
     t.done()
     try:
         return CameraModel.from_dict(values, where=t.where)
@@ -345,6 +412,7 @@ def _part(t: ConfigTable) -> PartConfig:
     names = t.texts("point_names", tuple(f"P{i + 1}" for i in range(len(points))))
     if len(names) != len(points):
         raise ConfigError(f"{t.where}.point_names: {len(names)} names for {len(points)} points_w")
+    _unique_names(names, f"{t.where}.point_names")
     normals = t.points("normals_w") if t.has("normals_w") else None
     if normals is not None and (len(normals) != len(points) or np.any(np.linalg.norm(normals, axis=1) < 1e-9)):
         raise ConfigError(f"{t.where}.normals_w: expected one non-zero normal per point of points_w ({len(points)})")
@@ -362,12 +430,23 @@ def _reference(t: ConfigTable) -> ReferenceConfig:
 
 def _measuring_poses(entries: list[ConfigTable], ref: ReferenceConfig, cam: CameraConfig,
                      n_points: int) -> tuple[MeasuringPose, ...]:
-    poses = []
+    if len(entries) > MAX_MEASURING_POSES:
+        raise ConfigError(f"{entries[0].file}: [[measuring_poses]]: {len(entries)} poses: must be 1 to "
+                          f"{MAX_MEASURING_POSES} (the robot programs' pose numbers 101 and up are base-calibration "
+                          "poses)")
+    poses: list[MeasuringPose] = []
     for i, t in enumerate(entries):
-        name = t.text("name", f"S{i + 1}")
+        name = t.text("name", f"S{i + 1}", nonempty=True)
+        if (first := next((j for j, p in enumerate(poses) if p.name == name), None)) is not None:
+            raise ConfigError(f"{t.where}.name = {name!r}: already the name of [[measuring_poses]] #{first + 1}; "
+                              "each pose's images, taught pose and calibration are filed under its own name")
         points = t.ints("points", None, tuple(range(n_points)))
+        if not points:
+            raise ConfigError(f"{t.where}.points = []: a measuring pose sees at least one featured hole")
         if bad := [p for p in points if not 0 <= p < n_points]:
             raise ConfigError(f"{t.where}.points = {list(points)}: {bad} not among the {n_points} points_w")
+        if twice := sorted({p for p in points if points.count(p) > 1}):
+            raise ConfigError(f"{t.where}.points = {list(points)}: {twice} listed twice (one image of a hole per view)")
         T_cf_si, T_b_f = t.matrix("T_cf_si", None), t.matrix("T_b_f", None)
         if T_cf_si is None:
             if T_b_f is None or ref.T_cf_b is None or cam.T_f_c is None:
@@ -380,11 +459,11 @@ def _measuring_poses(entries: list[ConfigTable], ref: ReferenceConfig, cam: Came
 
 def _tracker(t: ConfigTable) -> TrackerConfig:
     backend = t.choice("backend", TRACKER_BACKENDS)
-    port = t.text("port", None)
+    port = t.text("port", None, nonempty=True)
     if backend == "serial" and not port:
         raise ConfigError(f"{t.where}.port: backend 'serial' needs the serial port (e.g. /dev/ttyUSB0)")
-    baud = t.integer("baud", 115200, minimum=1)
-    out = TrackerConfig(backend, port, baud, t.number("timeout_s", 2.0, positive=True))
+    baud = _integer(t, "baud", 115200)
+    out = TrackerConfig(backend, port, baud, _number(t, "timeout_s", 2.0))
     t.done()
     return out
 
@@ -393,9 +472,13 @@ def _sim(t: ConfigTable) -> SimConfig:
     dev = t.optional_table("deviation")
     bench = t.optional_table("benchmarks")
     benchmarks = {k: bench.vector(k, 3) for k in list(bench.raw)}  # named by the cell: every key is a nest
-    targets = []
+    _nest_names(benchmarks, bench.where)
+    targets: list[CalibrationTarget] = []
     for tt in t.tables("targets"):
-        targets.append(CalibrationTarget(tt.text("name"), tt.matrix("T_cf_t"), tt.points("points_t")))
+        name = tt.text("name", nonempty=True)
+        if name in [target.name for target in targets]:
+            raise ConfigError(f"{tt.where}.name = {name!r}: another [[sim.targets]] has this name already")
+        targets.append(CalibrationTarget(name, tt.matrix("T_cf_t"), tt.points("points_t")))
         tt.done()
     out = SimConfig(
         seed=t.integer("seed", 0, minimum=0),
@@ -409,7 +492,7 @@ def _sim(t: ConfigTable) -> SimConfig:
         reported_repeatability_fraction=t.number("reported_repeatability_fraction", 1.0, nonnegative=True),
         truth_config=t.path("truth_config", None),
         tracker_noise_mm=t.number("tracker_noise_mm", 0.025, nonnegative=True),
-        exposure_us_nominal=t.number("exposure_us_nominal", 8000.0, positive=True),
+        exposure_us_nominal=_number(t, "exposure_us_nominal", 8000.0),
         benchmarks=benchmarks,
         tool_smr_f=t.vector("tool_smr_f", 3, None),
         targets=tuple(targets),
@@ -464,47 +547,42 @@ def _layout(t: ConfigTable) -> LayoutConfig:
 def _robot(t: ConfigTable) -> RobotConfig:
     backend = t.choice("backend", ROBOT_BACKENDS)
     make = backend.removeprefix("sim-")
-    port = t.integer("port", ROBOT_DEFAULT_PORTS[make], minimum=1)
+    port = _integer(t, "port", ROBOT_DEFAULT_PORTS[make])
     if make == "ur" and port != ROBOT_DEFAULT_PORTS["ur"]:
         raise ConfigError(f"{t.where}.port = {port}: a UR controller serves RTDE on 30004 only (ur_rtde cannot "
                           f"use another port)")
-    if port > 65535:
-        raise ConfigError(f"{t.where}.port = {port}: not a TCP port (1..65535)")
     out = RobotConfig(
         backend=backend,
-        host=t.text("host", "127.0.0.1"),
+        host=t.host("host", "127.0.0.1"),
         port=port,
-        connect_timeout_s=t.number("connect_timeout_s", 3.0, positive=True),
-        move_timeout_s=t.number("move_timeout_s", 30.0, positive=True),
-        ack_timeout_s=t.number("ack_timeout_s", 2.0, positive=True),
-        stale_timeout_s=t.number("stale_timeout_s", 1.0, positive=True),
-        rtde_frequency_hz=t.number("rtde_frequency_hz", 125.0, positive=True),
+        connect_timeout_s=_number(t, "connect_timeout_s", 3.0),
+        move_timeout_s=_number(t, "move_timeout_s", 30.0),
+        ack_timeout_s=_number(t, "ack_timeout_s", 2.0),
+        stale_timeout_s=_number(t, "stale_timeout_s", 1.0),
+        rtde_frequency_hz=_number(t, "rtde_frequency_hz", 125.0),
         pose_tolerance_mm=t.number("pose_tolerance_mm", 1.0, positive=True),
         pose_tolerance_deg=t.number("pose_tolerance_deg", 0.1, positive=True),
-        sim_move_time_s=t.number("sim_move_time_s", 0.5, nonnegative=True),
+        sim_move_time_s=_number(t, "sim_move_time_s", 0.5),
     )
-    if out.rtde_frequency_hz > 500.0:
-        raise ConfigError(f"{t.where}.rtde_frequency_hz = {out.rtde_frequency_hz:g}: a UR controller sends at "
-                          f"most 500 Hz")
+    if make == "ur" and out.stale_timeout_s < 2.0 / out.rtde_frequency_hz:
+        raise ConfigError(f"{t.where}.stale_timeout_s = {out.stale_timeout_s:g}: must be at least two periods of "
+                          f"rtde_frequency_hz = {out.rtde_frequency_hz:g} Hz ({2.0 / out.rtde_frequency_hz:g} s), or "
+                          f"every pause between two states counts as a stalled controller")
     t.done()
     return out
 
 
 def _plc(t: ConfigTable) -> PlcConfig:
     out = PlcConfig(
-        host=t.text("host"),
-        port=t.integer("port", 502, minimum=1),
-        unit=t.integer("unit", 1, minimum=1),
-        base=t.integer("base", 0, minimum=0),
+        host=t.host("host"),
+        port=_integer(t, "port", 502),
+        unit=_integer(t, "unit", 1),
+        base=_integer(t, "base", 0),
         word_order=t.choice("word_order", PLC_WORD_ORDERS, "big"),
-        heartbeat_timeout_s=t.number("heartbeat_timeout_s", 2.0, positive=True),
-        timeout_s=t.number("timeout_s", 1.0, positive=True),
-        ack_timeout_s=t.number("ack_timeout_s", 10.0, positive=True),
+        heartbeat_timeout_s=_number(t, "heartbeat_timeout_s", 2.0),
+        timeout_s=_number(t, "timeout_s", 1.0),
+        ack_timeout_s=_number(t, "ack_timeout_s", 10.0),
     )
-    for key, value, maximum in (("port", out.port, 65535), ("unit", out.unit, 255),
-                                ("base", out.base, 65536 - PLC_BLOCK_SIZE)):
-        if value > maximum:
-            raise ConfigError(f"{t.where}.{key} = {value}: above {maximum}")
     t.done()
     return out
 
@@ -512,8 +590,8 @@ def _plc(t: ConfigTable) -> PlcConfig:
 def _service(t: ConfigTable) -> ServiceConfig:
     out = ServiceConfig(
         keep_images=t.boolean("keep_images", True),
-        images_max_mb=t.number("images_max_mb", 2000.0, positive=True),
-        images_max_age_days=t.number("images_max_age_days", 30.0, positive=True),
+        images_max_mb=_number(t, "images_max_mb", 2000.0),
+        images_max_age_days=_number(t, "images_max_age_days", 30.0),
     )
     t.done()
     return out
@@ -546,6 +624,7 @@ def _cell_frame(t: ConfigTable) -> CellFrameConfig:
     bench = t.table("benchmarks")
     benchmarks = {k: bench.vector(k, 3) for k in list(bench.raw)}  # named by the cell: every key is a nest
     bench.done()
+    _nest_names(benchmarks, bench.where)
     if len(benchmarks) < 3:
         raise ConfigError(f"{t.where}.benchmarks: {len(benchmarks)} nests ({sorted(benchmarks)}); the cell frame "
                           f"needs at least 3")
@@ -557,7 +636,7 @@ def _calibration_target(t: ConfigTable) -> CalibrationTargetConfig:
     nests = t.points("nests_t")
     if len(nests) < 3:
         raise ConfigError(f"{t.where}.nests_t: {len(nests)} nests; the target's frame needs at least 3")
-    cols, rows = t.integer("marks_cols", minimum=2), t.integer("marks_rows", minimum=2)
+    cols, rows = _integer(t, "marks_cols"), _integer(t, "marks_rows")
     pitch = t.number("marks_pitch_mm", positive=True)
     radius = t.number("marks_radius_mm", positive=True)
     if radius >= pitch / 2:
@@ -614,6 +693,57 @@ def _provenance_value(t: ConfigTable, key: str) -> Any:
     if isinstance(value, float):
         return t.number(key)
     raise ConfigError(f"{t.where}.{key} = {value!r}: expected a number, string, true/false or a list of numbers")
+
+
+def _number(t: ConfigTable, key: str, *default: Any) -> Any:
+    """A number within its documented range, :data:`BOUNDS` ``[section.key]``."""
+    return t.number(key, *default, bounds=BOUNDS[f"{t.name}.{key}"])
+
+
+def _integer(t: ConfigTable, key: str, *default: Any) -> Any:
+    """An integer within its documented range, :data:`BOUNDS` ``[section.key]``."""
+    return t.integer(key, *default, bounds=BOUNDS[f"{t.name}.{key}"])
+
+
+def _unique_names(names: tuple[str, ...], where: str) -> None:
+    for i, name in enumerate(names):
+        if not name.strip():
+            raise ConfigError(f"{where} = {list(names)}: name #{i + 1} is empty")
+        if name in names[:i]:
+            raise ConfigError(f"{where} = {list(names)}: {name!r} names two points")
+
+
+def _nest_names(nests: dict[str, np.ndarray], where: str) -> None:
+    if any(not name.strip() for name in nests):
+        raise ConfigError(f"{where}: a nest with an empty name ({sorted(nests)})")
+
+
+def _check_redundancy(config: CellConfig) -> None:
+    """The measuring poses together give the pose solver what it needs: at least :data:`MIN_OBSERVATIONS` hole
+    images (two equations each for the pose's six unknowns, and a degree of freedom left for the chi-square
+    consistency check, solver/consistency.py) of at least three holes not on one line (otherwise the rotation
+    about that line is not observed). Without it every cycle would fail at run time."""
+    poses, names = config.measuring_poses, config.part.point_names
+    seen = [(pose.name, j) for pose in poses for j in pose.points]
+    holes = sorted({j for _, j in seen})
+    where = f"{config.path}: [[measuring_poses]] {', '.join(p.name for p in poses)}"
+    m = len(seen)
+    if m < MIN_OBSERVATIONS:
+        images = ", ".join(f"{names[j]} in {pose}" for pose, j in seen)
+        raise ConfigError(f"{where}: see {m} hole image(s) of [part] ({images}); the pose solver needs at least "
+                          f"{MIN_OBSERVATIONS}: two equations per image for the pose's 6 unknowns leave 2 x {m} - 6 "
+                          f"= {2 * m - 6} degrees of freedom, and its consistency check needs at least 1")
+    if len(holes) < 3:
+        raise ConfigError(f"{where}: see {len(holes)} distinct hole(s) of [part] ({', '.join(names[j] for j in holes)}"
+                          f"); the pose needs at least 3 holes not on one line (about the line through them it "
+                          f"cannot be solved)")
+    P = config.part.points_w[holes]
+    P = P - P.mean(axis=0)
+    direction = np.linalg.svd(P)[2][0]
+    off_line = np.linalg.norm(P - np.outer(P @ direction, direction), axis=1)
+    if float(off_line.max()) <= COLLINEAR_MM:
+        raise ConfigError(f"{where}: the holes they see ({', '.join(names[j] for j in holes)}) lie on one line "
+                          f"(all within {COLLINEAR_MM:g} mm of it); the rotation about it cannot be solved")
 
 
 def _check_backends(config: CellConfig) -> None:

@@ -3,15 +3,21 @@
 :class:`ConfigTable` is what the section readers of :mod:`monoguide.daemon.config` read with. Each getter
 takes its key out of the table and remembers it as known; :meth:`ConfigTable.done` then refuses whatever
 is left, suggesting the closest known key (``sigma_pix`` -> ``sigma_px``). A key without a default is
-required: missing, it raises :class:`ConfigMissingKey`, never a zero.
+required: missing, it raises :class:`ConfigMissingKey`, never a zero. A number with a documented range
+(:class:`Bounds`) is refused outside it, the message naming the key, the value and the range
+(``[plc].ack_timeout_s = 1e+308: must be 0.05 to 600 s``); a name must not be empty; a host must be an IP
+address or an RFC 1123 host name (:func:`host_problem`).
 """
 
 from __future__ import annotations
 
 import difflib
+import ipaddress
 import math
 import os
+import re
 from collections.abc import Iterable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +52,55 @@ class ConfigMissingKey(ConfigError):
 
 
 _MISSING = object()
+_HOST_LABEL = re.compile(r"[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0-9])?")  # RFC 1123: 1-63 characters
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """The documented range of a number or an integer: ``low`` to ``high``, both included, in ``unit``."""
+
+    low: float
+    high: float
+    unit: str = ""
+
+    def __str__(self) -> str:
+        return f"{_plain(self.low)} to {_plain(self.high)}{f' {self.unit}' if self.unit else ''}"
+
+    def admits(self, value: float) -> bool:
+        return self.low <= value <= self.high  # False for NaN
+
+
+def host_problem(host: str) -> str | None:
+    """Why ``host`` is neither an IPv4/IPv6 address nor an RFC 1123 host name; None when it is one.
+
+    A name whose last label is all digits (``256.1.1.1``, ``10.0.1``) is meant as an IPv4 address, never a
+    name (RFC 1123 2.1, RFC 3696 2: no top-level domain is all-numeric)."""
+    if not host.strip():
+        return "empty: expected an IP address or a host name"
+    try:
+        ipaddress.ip_address(host)
+        return None
+    except ValueError as exc:
+        reason = str(exc)
+    if host.startswith("["):
+        return "not an IPv6 address: write it without the brackets"
+    if re.fullmatch(r"[^:]+:[0-9]+", host):
+        return "a host with a port: give the port in its own key, port"
+    if ":" in host:
+        return f"not an IPv6 address ({reason})"
+    name = host.removesuffix(".")
+    labels = name.split(".")
+    if labels[-1].isdigit():
+        try:
+            ipaddress.IPv4Address(host)
+        except ValueError as exc:
+            return f"not an IPv4 address ({exc})"
+    if len(name) > 253:
+        return f"a host name of {len(name)} characters (at most 253)"
+    if bad := [label for label in labels if not _HOST_LABEL.fullmatch(label)]:
+        return (f"not a host name: label {bad[0]!r} (each label 1 to 63 letters, digits or hyphens, not beginning "
+                "or ending with a hyphen)")
+    return None
 
 
 class ConfigTable:
@@ -108,12 +163,24 @@ class ConfigTable:
 
     # --- values ----------------------------------------------------------------------------------
 
-    def text(self, key: str, default: Any = _MISSING) -> Any:
+    def text(self, key: str, default: Any = _MISSING, nonempty: bool = False) -> Any:
+        """A string; ``nonempty``: a name, which must not be empty or only blanks."""
         value = self._pop(key, default)
         if value is default and default is not _MISSING:
             return value
         if not isinstance(value, str):
             raise ConfigError(f"{self.where}.{key} = {value!r}: expected a string")
+        if nonempty and not value.strip():
+            raise ConfigError(f"{self.where}.{key} = {value!r}: must not be empty")
+        return value
+
+    def host(self, key: str, default: Any = _MISSING) -> Any:
+        """An IPv4 or IPv6 address, or an RFC 1123 host name (resolved only when the device is opened)."""
+        value = self.text(key, default)
+        if value is default and default is not _MISSING:
+            return value
+        if (problem := host_problem(value)) is not None:
+            raise ConfigError(f"{self.where}.{key} = {value!r}: {problem}")
         return value
 
     def texts(self, key: str, default: Any = _MISSING) -> Any:
@@ -149,11 +216,18 @@ class ConfigTable:
         p = Path(os.path.expandvars(os.path.expanduser(value)))
         return p if p.is_absolute() else self.base / p
 
-    def number(self, key: str, default: Any = _MISSING, positive: bool = False, nonnegative: bool = False) -> Any:
+    def number(self, key: str, default: Any = _MISSING, positive: bool = False, nonnegative: bool = False,
+               bounds: Bounds | None = None) -> Any:
+        """A finite number; ``bounds``: within its documented range (NaN and infinities are outside every range)."""
         value = self._pop(key, default)
         if value is default and default is not _MISSING:
             return value
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            within = f" ({bounds})" if bounds else ""
+            raise ConfigError(f"{self.where}.{key} = {value!r}: expected a finite number{within}")
+        if bounds is not None and not bounds.admits(value):
+            raise ConfigError(f"{self.where}.{key} = {value!r}: must be {bounds}")
+        if not math.isfinite(value):
             raise ConfigError(f"{self.where}.{key} = {value!r}: expected a finite number")
         if positive and value <= 0:
             raise ConfigError(f"{self.where}.{key} = {value!r}: must be positive")
@@ -161,12 +235,17 @@ class ConfigTable:
             raise ConfigError(f"{self.where}.{key} = {value!r}: must not be negative")
         return float(value)
 
-    def integer(self, key: str, default: Any = _MISSING, minimum: int | None = None) -> Any:
+    def integer(self, key: str, default: Any = _MISSING, minimum: int | None = None,
+                bounds: Bounds | None = None) -> Any:
+        """An integer; ``bounds``: within its documented range."""
         value = self._pop(key, default)
         if value is default and default is not _MISSING:
             return value
         if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{self.where}.{key} = {value!r}: expected an integer")
+            within = f" ({bounds})" if bounds else ""
+            raise ConfigError(f"{self.where}.{key} = {value!r}: expected an integer{within}")
+        if bounds is not None and not bounds.admits(value):
+            raise ConfigError(f"{self.where}.{key} = {value!r}: must be {bounds}")
         if minimum is not None and value < minimum:
             raise ConfigError(f"{self.where}.{key} = {value!r}: must be at least {minimum}")
         return value
@@ -245,3 +324,10 @@ class ConfigTable:
         if default is _MISSING:
             raise self._missing(key)
         return default
+
+
+def _plain(value: float) -> str:
+    """A bound as people write it: ``600``, ``0.05``, ``4000000`` (never ``4e+06``)."""
+    if float(value).is_integer():
+        return str(int(value))
+    return f"{value:g}"

@@ -22,6 +22,7 @@ Timings (seconds) go into one dict, ``Measurement.timings_s``, shared with ``Sol
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import itertools
 import logging
@@ -29,7 +30,7 @@ import math
 import re
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -175,7 +176,8 @@ class CycleRunner:
         if job != 1:
             raise PlcUnknownJob(f"job {job}: the config has one part entry, job 1 ({self.config.name})")
         timings = {"robot_motion": 0.0, "exposure": 0.0, "hole_finding": 0.0}
-        self._configure_camera()
+        with device_errors("camera"):
+            self._configure_camera()
         poses = self.config.measuring_poses
         futures: list[Future[tuple[Capture, float]]] = []
         last_frame_at = 0.0
@@ -186,10 +188,12 @@ class CycleRunner:
                 if futures and futures[-1].done():
                     futures[-1].result()  # a view already failed: no need to visit the next one
                 t0 = time.monotonic()
-                status = self.robot.move_to_measuring_pose(i)
+                with device_errors("robot"):
+                    status = self.robot.move_to_measuring_pose(i)
                 t1 = time.monotonic()
                 _check_abort(abort, abort_error)
-                frame = self._grab()
+                with device_errors("camera"):
+                    frame = self._grab()
                 last_frame_at = time.monotonic()
                 timings["robot_motion"] += t1 - t0
                 timings["exposure"] += last_frame_at - t1
@@ -272,10 +276,12 @@ class CycleRunner:
         finally:
             measurement.timings_s["checks"] = time.monotonic() - start
 
-    def write(self, solution: Solution) -> int:
-        """Write ``D_b`` to the robot; returns the sequence number it acknowledged."""
+    def write(self, solution: Solution, before_send: Callable[[int], None] | None = None) -> int:
+        """Write ``D_b`` to the robot; returns the sequence number it acknowledged. ``before_send(sequence)``
+        runs before anything goes on the wire (the journal's intent): when it raises, nothing is sent."""
         start = time.monotonic()
-        sequence = self.robot.write_base_offset(solution.D_b)
+        with device_errors("robot"):
+            sequence = self.robot.write_base_offset(solution.D_b, before_send=before_send)
         done = time.monotonic()
         solution.timings_s["offset_write"] = done - start
         if solution.last_frame_at:
@@ -495,6 +501,18 @@ def wait_images(images: list[Future[bool]], timeout_s: float = 10.0) -> bool:
             log.warning("images: still writing after %.0f s", timeout_s)
             return False
     return ok
+
+
+@contextlib.contextmanager
+def device_errors(device: str) -> Iterator[None]:
+    """A :class:`DeviceError` raised inside names the device it came from (``error.device``), so that the
+    service reconnects that device alone and says which one it lost."""
+    try:
+        yield
+    except DeviceError as exc:
+        if getattr(exc, "device", None) is None:
+            exc.device = device  # type: ignore[attr-defined]
+        raise
 
 
 def _check_abort(abort: threading.Event, abort_error: Callable[[], MonoguideError]) -> None:

@@ -1,16 +1,17 @@
 """The measuring cycle as a declared state machine: the states, the table of allowed transitions, the latch.
 
 One cycle runs idle -> measuring -> solving -> checking -> writing -> reporting -> awaiting_ack -> idle
-(issue 10). Every transition is named by its cause (:class:`Cause`); the table :data:`TRANSITIONS` says,
+Every transition is named by its cause (:class:`Cause`); the table :data:`TRANSITIONS` says,
 for each state, which causes may happen there and where each leads. A cause the table does not list for
 the current state is a bug in the caller and raises :class:`IllegalTransition` — the machine never guesses.
 
 - **Any failure** during a cycle (measuring .. writing) is ``FAILED`` with the error that caused it: the
   cycle goes to reporting (journal, then the PLC sees ERROR with the error's ``plc_code``), nothing is
   written to the robot, and after the PLC's acknowledgement the cell is idle again.
-- **FAULT is a latch**: PLC heartbeat lost, the journal unable to commit, or no acknowledgement from the
-  PLC. It is left only by ``FAULT_RESET`` (the heartbeat is back and the PLC pulsed FAULT_RESET; the
-  caller checks both) — or by the service stopping (``STOP``), after which a restart starts clean.
+- **FAULT is a latch**: PLC heartbeat lost, the journal unable to commit, no acknowledgement from the
+  PLC, or an offset sent to the robot whose fate monoguide could not settle (``OFFSET_UNCONFIRMED``). It
+  is left only by ``FAULT_RESET`` (the caller checks that the heartbeat is back, every offset settled and
+  the journal still in place) — or by the service stopping (``STOP``).
 - **STARTING** is the not-ready state: status word 0 written, devices (re)connecting. The cell enters
   idle (READY) only through ``DEVICES_CONNECTED``.
 
@@ -80,11 +81,13 @@ class Cause(enum.Enum):
     HEARTBEAT_LOST = "PLC heartbeat lost"  # error
     REPORT_FAILED = "report failed"  # error: the journal could not commit or the PLC could not be told
     ACK_TIMEOUT = "no acknowledgement"  # error: the PLC never acknowledged DONE
+    OFFSET_UNCONFIRMED = "offset unconfirmed"  # error: the robot may hold an offset monoguide could not settle
     FAULT_RESET = "fault reset"
     STOP = "stop"
 
 
-ERROR_CAUSES = frozenset({Cause.FAILED, Cause.HEARTBEAT_LOST, Cause.REPORT_FAILED, Cause.ACK_TIMEOUT})
+ERROR_CAUSES = frozenset({Cause.FAILED, Cause.HEARTBEAT_LOST, Cause.REPORT_FAILED, Cause.ACK_TIMEOUT,
+                          Cause.OFFSET_UNCONFIRMED})
 
 CYCLE_STATES = (State.MEASURING, State.SOLVING, State.CHECKING, State.WRITING)
 """The states of a running cycle (the PLC sees BUSY); a failure in any of them is reported as ERROR."""
@@ -99,6 +102,7 @@ TRANSITIONS: Mapping[State, Mapping[Cause, State]] = {
     State.STARTING: {
         Cause.DEVICES_CONNECTED: State.IDLE,
         Cause.HEARTBEAT_LOST: State.FAULT,
+        Cause.OFFSET_UNCONFIRMED: State.FAULT,  # the journal holds an offset intent without an outcome
         Cause.STOP: State.STOPPED,
     },
     State.IDLE: {
@@ -115,6 +119,7 @@ TRANSITIONS: Mapping[State, Mapping[Cause, State]] = {
         Cause.REPORTED: State.AWAITING_ACK,
         Cause.REPORT_FAILED: State.FAULT,
         Cause.HEARTBEAT_LOST: State.FAULT,
+        Cause.OFFSET_UNCONFIRMED: State.FAULT,  # journaled; the robot may hold the offset: no DONE
     },
     State.AWAITING_ACK: {
         Cause.RESULT_ACKNOWLEDGED: State.IDLE,

@@ -11,6 +11,19 @@ cut too. The price is one fsync per cycle (cycles are seconds apart) — nothing
 :meth:`Journal.commit_cycle` returns only after that commit, and returns the cycle number the PLC
 is then given: the natural order is journal first, PLC after.
 
+**An intent before every offset.** Before an offset goes to the robot, :meth:`Journal.commit_intent` commits
+it (the cycle's number, the robot request's sequence number, the six numbers) in the table ``offset_intent``;
+the cycle's row and the intent's outcome are committed together afterwards (:meth:`Journal.commit_cycle` with
+``intent_outcome``). An intent without an outcome (the controller lost mid-write, the service killed between
+the robot's acknowledgement and the commit) is settled against what the robot says it holds
+(:meth:`Journal.settle_intent`), so no offset the robot received is missing from the journal.
+
+**Cycle numbers** are SQLite integers (64 bit): they count on past 65,535 and 2^31; PLC register 13 shows them
+modulo 65536. A journal that was recreated continues after the number the PLC last showed
+(:meth:`Journal.continue_numbering`). The file's identity (device and inode) is checked before every commit: a
+journal deleted or replaced under a running service is :class:`JournalReplaced`, never a silent write into an
+unlinked file.
+
 Images live under ``<state dir>/images``; :meth:`Journal.prune_images` deletes those of the oldest
 cycles beyond a size or age limit and marks their rows (the row itself is kept).
 """
@@ -18,6 +31,7 @@ cycles beyond a size or age limit and marks their rows (the row itself is kept).
 from __future__ import annotations
 
 import json
+import os
 import sqlite3
 import time
 from collections.abc import Sequence
@@ -27,10 +41,12 @@ from typing import Any
 
 from monoguide.solver.errors import MonoguideError
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: the offset_intent table (version 1 journals are upgraded in place when opened)
+READABLE_VERSIONS = (1, 2)
 APPLICATION_ID = 0x4D4F4E4F  # "MONO": marks the file as a monoguide journal for `file` and for us
 JOURNAL_FILE = "journal.sqlite3"
 IMAGES_DIR = "images"
+MAX_NUMBER = 2**63 - 1  # SQLite INTEGER
 BUSY_TIMEOUT_MS = 5000  # every wait has a timeout: another process holding the write lock
 
 _SCHEMA = """
@@ -52,6 +68,28 @@ CREATE TABLE cycle (
     images_pruned_at REAL                      -- when prune_images deleted this cycle's image files
 );
 """
+
+_INTENT_SCHEMA = """
+CREATE TABLE IF NOT EXISTS offset_intent (
+    cycle INTEGER PRIMARY KEY,                 -- the number of the cycle whose offset this is
+    sequence INTEGER NOT NULL,                 -- the robot request's sequence number
+    offset_json TEXT NOT NULL,                 -- {"registers": [x, y, z mm, A, B, C deg], "D_b": 4x4}
+    intended_at REAL NOT NULL,                 -- Unix time, s: committed before the offset was sent
+    outcome TEXT CHECK (outcome IN ('acknowledged', 'refused', 'held', 'not_held')),  -- null: not settled
+    cleared INTEGER NOT NULL DEFAULT 0,        -- 1: monoguide then cleared the robot's offset (command 3)
+    settled_at REAL,
+    detail TEXT
+);
+"""
+INTENT_OUTCOMES = ("acknowledged", "refused", "held", "not_held")
+
+# prune_images looks only at cycles whose images are still on disk: a partial index over those rows, so its cost
+# follows the images kept (bounded by [service] images_max_mb), not the journal's length
+_INDEX_SCHEMA = """
+CREATE INDEX IF NOT EXISTS cycle_images_kept ON cycle (number)
+    WHERE images_pruned_at IS NULL AND images_json <> '[]';
+"""
+_IMAGES_KEPT = "images_pruned_at IS NULL AND images_json <> '[]'"
 
 
 class JournalError(MonoguideError):
@@ -87,6 +125,14 @@ class JournalEntryInvalid(JournalError):
 
     code = "JOURNAL_ENTRY_INVALID"
     plc_code = 624
+
+
+class JournalReplaced(JournalError):
+    """The journal file was deleted or replaced while the service ran: nothing more is committed to it, no
+    offset is written; FAULT stays latched until the service is restarted (which opens the journal anew)."""
+
+    code = "JOURNAL_REPLACED"
+    plc_code = 625
 
 
 @dataclass(frozen=True)
@@ -127,6 +173,22 @@ class JournalRow:
 
 
 @dataclass(frozen=True)
+class OffsetIntent:
+    """An offset committed before it was sent to the robot, and what became of it (``outcome`` None: not
+    settled yet — the robot may hold it)."""
+
+    cycle: int
+    sequence: int
+    registers: tuple[float, ...]  # x, y, z (mm), A, B, C (deg): PLC registers 16-27
+    D_b: list[list[float]]
+    intended_at: float
+    outcome: str | None
+    cleared: bool
+    settled_at: float | None
+    detail: str | None
+
+
+@dataclass(frozen=True)
 class PruneReport:
     cycles: int
     files: int
@@ -145,6 +207,8 @@ class Journal:
         except OSError as exc:
             raise JournalError(f"journal {self.path}: cannot create {self.images_dir}: {exc}") from exc
         self._db = self._open()
+        self._identity = self._file_identity()
+        self._image_sizes: dict[str, int] = {}  # stored image path -> bytes, looked up once (prune_images)
 
     def close(self) -> None:
         self._db.close()
@@ -157,31 +221,103 @@ class Journal:
 
     # --- writing ------------------------------------------------------------------------------------
 
-    def commit_cycle(self, entry: CycleEntry) -> int:
+    def commit_cycle(self, entry: CycleEntry, number: int | None = None, *,
+                     intent_outcome: tuple[str, str] | None = None) -> int:
         """Store one finished cycle and commit it (fsynced); return its number, the new cycle counter.
 
+        ``number``: the cycle's number when an intent was committed for it (:meth:`next_number` then); else the
+        next one. ``intent_outcome`` (outcome, detail): settles that cycle's intent in the same transaction.
         Only after this returns may the PLC be told DONE. Raises :class:`JournalEntryInvalid` for an entry
         that contradicts itself and :class:`JournalError` when SQLite fails (nothing is then committed).
         """
         status, error_code, plc_code, message = _outcome(entry)
         row = (
-            entry.started_at, entry.finished_at, entry.job, entry.part_tag, status, error_code, plc_code, message,
-            _dumps("record", entry.record), _dumps("result", entry.result), _dumps("timings_s", entry.timings_s),
-            _dumps("poses_at_capture", entry.poses_at_capture),
+            number, entry.started_at, entry.finished_at, entry.job, entry.part_tag, status, error_code, plc_code,
+            message, _dumps("record", entry.record), _dumps("result", entry.result),
+            _dumps("timings_s", entry.timings_s), _dumps("poses_at_capture", entry.poses_at_capture),
             _dumps("image_paths", [self._relative(p) for p in entry.image_paths]),
         )
+        self.check_identity()
         with self._sqlite("commit a cycle"), self._db:
             cursor = self._db.execute(
-                "INSERT INTO cycle (started_at, finished_at, job, part_tag, status, error_code, plc_code,"
+                "INSERT INTO cycle (number, started_at, finished_at, job, part_tag, status, error_code, plc_code,"
                 " error_message, record_json, result_json, timings_json, poses_json, images_json)"
-                " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 row,
             )
-        return int(cursor.lastrowid)
+            committed = int(cursor.lastrowid)
+            if intent_outcome is not None:
+                self._settle(committed, *intent_outcome, cleared=False)
+        return committed
+
+    def next_number(self) -> int:
+        """The number the next committed cycle gets (the counter + 1)."""
+        return self.cycle_counter() + 1
+
+    def commit_intent(self, cycle: int, sequence: int, registers: tuple[float, ...], D_b: list[list[float]]) -> None:
+        """Commit the offset of cycle ``cycle`` (request ``sequence``) before it is sent: when this raises,
+        nothing may be sent. ``registers``: x y z (mm) A B C (deg) as the PLC shows them; ``D_b`` the 4x4."""
+        offset = _dumps("offset", {"registers": [float(v) for v in registers], "D_b": D_b})
+        self.check_identity()
+        with self._sqlite(f"commit the offset intent of cycle {cycle}"), self._db:
+            self._db.execute("INSERT INTO offset_intent (cycle, sequence, offset_json, intended_at)"
+                             " VALUES (?, ?, ?, ?)", (cycle, sequence, offset, time.time()))
+
+    def settle_intent(self, cycle: int, outcome: str, detail: str, *, cleared: bool = False) -> None:
+        """Record what became of cycle ``cycle``'s offset (``INTENT_OUTCOMES``) and whether monoguide cleared
+        it from the robot afterwards."""
+        self.check_identity()
+        with self._sqlite(f"settle the offset intent of cycle {cycle}"), self._db:
+            self._settle(cycle, outcome, detail, cleared=cleared)
+
+    def intent(self, cycle: int) -> OffsetIntent | None:
+        with self._sqlite(f"read the offset intent of cycle {cycle}"):
+            found = self._db.execute(f"SELECT {_INTENT_COLUMNS} FROM offset_intent WHERE cycle = ?",
+                                     (cycle,)).fetchone()
+        return None if found is None else _intent(found)
+
+    def unsettled_intents(self) -> list[OffsetIntent]:
+        """Intents without an outcome, oldest first: offsets the robot may hold."""
+        with self._sqlite("list unsettled offset intents"):
+            rows = self._db.execute(f"SELECT {_INTENT_COLUMNS} FROM offset_intent WHERE outcome IS NULL"
+                                    " ORDER BY cycle").fetchall()
+        return [_intent(found) for found in rows]
+
+    def last_sequence(self) -> int:
+        """The robot sequence number of the newest intent (0: none)."""
+        with self._sqlite("read the last offset intent"):
+            found = self._db.execute("SELECT sequence FROM offset_intent ORDER BY cycle DESC LIMIT 1").fetchone()
+        return int(found[0]) if found else 0
+
+    def continue_numbering(self, after: int) -> bool:
+        """A journal with no cycle yet numbers its first cycle ``after + 1`` (the PLC's register 13 showed
+        ``after``: a recreated journal must not count 1, 2, ... again). True when it changed the numbering."""
+        if after <= 0:
+            return False
+        self.check_identity()
+        with self._sqlite("continue the cycle numbering"), self._db:
+            if self._db.execute("SELECT count(*) FROM cycle").fetchone()[0]:
+                return False
+            self._db.execute("DELETE FROM sqlite_sequence WHERE name = 'cycle'")
+            self._db.execute("INSERT INTO sqlite_sequence (name, seq) VALUES ('cycle', ?)", (after,))
+        return True
+
+    def check_identity(self) -> None:
+        """:class:`JournalReplaced` when the file at :attr:`path` is gone or is another file than the one opened."""
+        try:
+            now = self._file_identity()
+        except FileNotFoundError:
+            raise JournalReplaced(f"journal {self.path}: the file was deleted while the service ran; nothing more "
+                                  "is committed and no offset is written until the service is restarted") from None
+        if now != self._identity:
+            raise JournalReplaced(f"journal {self.path}: the file was replaced by another (inode {self._identity[1]}"
+                                  f" -> {now[1]}) while the service ran; nothing more is committed and no offset is "
+                                  "written until the service is restarted")
 
     def amend_timings(self, number: int, timings_s: dict[str, float]) -> None:
         """Add timings known only after the commit (``plc_journal``, ``cycle``: they include the commit and
         the PLC's DONE) to cycle ``number``'s row; the rest of the row is never changed."""
+        self.check_identity()
         with self._sqlite(f"amend cycle {number}"), self._db:
             found = self._db.execute("SELECT timings_json FROM cycle WHERE number = ?", (number,)).fetchone()
             if found is None:
@@ -198,16 +334,23 @@ class Journal:
         return int(found[0]) if found else 0
 
     def cycle(self, number: int) -> JournalRow:
+        if not 1 <= number <= MAX_NUMBER:  # SQLite's integers are 64-bit: a larger number is no cycle
+            raise JournalEntryMissing(f"journal {self.path}: no cycle {number}: cycle numbers run from 1 to "
+                                      f"{MAX_NUMBER} (counter {self.cycle_counter()})")
         with self._sqlite(f"read cycle {number}"):
             found = self._db.execute(f"SELECT {_COLUMNS} FROM cycle WHERE number = ?", (number,)).fetchone()
         if found is None:
             raise JournalEntryMissing(f"journal {self.path}: no cycle {number} (counter {self.cycle_counter()})")
         return _row(found)
 
+    def has_cycle(self, number: int) -> bool:
+        with self._sqlite(f"look for cycle {number}"):
+            return self._db.execute("SELECT 1 FROM cycle WHERE number = ?", (number,)).fetchone() is not None
+
     def last_cycles(self, count: int) -> list[JournalRow]:
         """The ``count`` most recent cycles, newest first."""
         with self._sqlite("list cycles"):
-            rows = self._db.execute(f"SELECT {_COLUMNS} FROM cycle ORDER BY number DESC LIMIT ?", (count,)).fetchall()
+            rows = self._db.execute(LAST_CYCLES_QUERY, (MAX_NUMBER, count)).fetchall()
         return [_row(found) for found in rows]
 
     def integrity_check(self) -> str:
@@ -221,28 +364,34 @@ class Journal:
         """Delete the image files of the oldest cycles until the rest are younger than ``max_age_s`` and
         together at most ``max_bytes``; mark those rows ``images_pruned_at``. Call it between cycles.
 
-        Whole cycles go together, oldest first; missing files count as already gone.
+        Whole cycles go together, oldest first; missing files count as already gone. Only the cycles whose
+        images are kept are read (an index), and each file's size is looked up once (the files of a committed
+        cycle are complete): the cost follows the images kept, not the journal's length.
         """
         now = time.time() if now is None else now
         with self._sqlite("list images"):
-            rows = self._db.execute(
-                "SELECT number, finished_at, images_json FROM cycle WHERE images_pruned_at IS NULL ORDER BY number"
-            ).fetchall()
-        cycles = [(number, finished, [self._absolute(p) for p in json.loads(images)])
-                  for number, finished, images in rows]
-        sizes = {path: _size(path) for _, _, paths in cycles for path in paths}
-        total = sum(sizes.values())
+            rows = self._db.execute(PRUNE_QUERY).fetchall()
+        sizes = self._image_sizes
+        cycles = []
+        for number, finished_at, images in rows:
+            paths = json.loads(images)
+            for stored in paths:
+                if stored not in sizes:
+                    sizes[stored] = _size(self._absolute(stored))
+            cycles.append((number, finished_at, paths))
+        total = sum(sizes[stored] for _, _, paths in cycles for stored in paths)
         pruned: list[int] = []
         files = freed = 0
         for number, finished_at, paths in cycles:
             if now - finished_at <= max_age_s and total <= max_bytes:
                 break
-            for path in paths:
-                if sizes[path]:
-                    path.unlink(missing_ok=True)
+            for stored in paths:
+                size = sizes.pop(stored, 0)
+                if size:
+                    self._absolute(stored).unlink(missing_ok=True)
                     files += 1
-                    freed += sizes[path]
-                    total -= sizes[path]
+                    freed += size
+                    total -= size
             pruned.append(number)
         if pruned:
             with self._sqlite("mark pruned images"), self._db:
@@ -266,16 +415,21 @@ class Journal:
                 tables = db.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]
             if version == 0 and application_id == 0 and tables == 0:
                 with self._sqlite("create the schema"):
-                    db.executescript(f"BEGIN; {_SCHEMA} PRAGMA application_id = {APPLICATION_ID};"
+                    db.executescript(f"BEGIN; {_SCHEMA} {_INTENT_SCHEMA} {_INDEX_SCHEMA}"
+                                     f" PRAGMA application_id = {APPLICATION_ID};"
                                      f" PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;")
             elif application_id != APPLICATION_ID:
                 raise JournalSchemaUnknown(f"journal {self.path}: an SQLite database but not a monoguide journal"
                                            f" (application_id {application_id:#x}, {tables} objects); refusing to"
                                            " touch it — move it away or point --state-dir elsewhere")
-            elif version != SCHEMA_VERSION:
+            elif version not in READABLE_VERSIONS:
                 newer = " (written by a newer monoguide?)" if version > SCHEMA_VERSION else ""
                 raise JournalSchemaUnknown(f"journal {self.path}: schema version {version}{newer}; this monoguide"
-                                           f" reads version {SCHEMA_VERSION} only")
+                                           f" reads versions {', '.join(map(str, READABLE_VERSIONS))} only")
+            elif version < SCHEMA_VERSION:  # additive: the offset_intent table, the index of kept images
+                with self._sqlite(f"upgrade the schema from version {version}"):
+                    db.executescript(f"BEGIN; {_INTENT_SCHEMA} {_INDEX_SCHEMA} PRAGMA user_version = "
+                                     f"{SCHEMA_VERSION}; COMMIT;")
             with self._sqlite("set WAL mode"):
                 mode = db.execute("PRAGMA journal_mode = WAL").fetchone()[0]
                 db.execute("PRAGMA synchronous = FULL")
@@ -285,6 +439,19 @@ class Journal:
             db.close()
             raise
         return db
+
+    def _settle(self, cycle: int, outcome: str, detail: str, *, cleared: bool) -> None:
+        if outcome not in INTENT_OUTCOMES:
+            raise JournalEntryInvalid(f"offset intent of cycle {cycle}: outcome {outcome!r} is not one of "
+                                      f"{', '.join(INTENT_OUTCOMES)}")
+        updated = self._db.execute("UPDATE offset_intent SET outcome = ?, detail = ?, cleared = ?, settled_at = ?"
+                                   " WHERE cycle = ?", (outcome, detail, int(cleared), time.time(), cycle)).rowcount
+        if not updated:
+            raise JournalEntryMissing(f"journal {self.path}: no offset intent for cycle {cycle}")
+
+    def _file_identity(self) -> tuple[int, int]:
+        stat = os.stat(self.path)
+        return stat.st_dev, stat.st_ino
 
     def _sqlite(self, doing: str) -> _SqliteErrors:
         return _SqliteErrors(self.path, doing)
@@ -320,6 +487,19 @@ class _SqliteErrors:
 
 _COLUMNS = ("number, started_at, finished_at, job, part_tag, status, error_code, plc_code, error_message,"
             " record_json, result_json, timings_json, poses_json, images_json, images_pruned_at")
+
+
+# a search from the newest number down (the primary key), never a scan of the table
+LAST_CYCLES_QUERY = f"SELECT {_COLUMNS} FROM cycle WHERE number <= ? ORDER BY number DESC LIMIT ?"
+PRUNE_QUERY = f"SELECT number, finished_at, images_json FROM cycle WHERE {_IMAGES_KEPT} ORDER BY number"
+_INTENT_COLUMNS = "cycle, sequence, offset_json, intended_at, outcome, cleared, settled_at, detail"
+
+
+def _intent(found: Sequence[Any]) -> OffsetIntent:
+    cycle, sequence, offset, intended_at, outcome, cleared, settled_at, detail = found
+    data = json.loads(offset)
+    return OffsetIntent(cycle, sequence, tuple(data["registers"]), data["D_b"], intended_at, outcome, bool(cleared),
+                        settled_at, detail)
 
 
 def _outcome(entry: CycleEntry) -> tuple[str, str | None, int, str | None]:

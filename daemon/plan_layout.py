@@ -8,20 +8,21 @@ copy gives them too, ``T_b_f = inv(T_cf_b) @ T_cf_si @ inv(T_f_c)``, so the two 
 
 from __future__ import annotations
 
-import os
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import tomlkit
+import tomlkit.exceptions
 
 from monoguide.daemon.config import CellConfig, LayoutConfig, load_cell_config
+from monoguide.drivers.atomic_file import write_atomic
 from monoguide.drivers.errors import ConfigError
+from monoguide.drivers.toml_format import commented, matrix, replace_section
 from monoguide.solver.frames import compose, invert, transform_points
 from monoguide.solver.planning import LayoutAssessment, LayoutRequest, ReachRegion
 
 WRITE_TOL_MM = 1e-6  # a written pose must read back to within this (and the rotation to 1e-9)
-_HEADER = re.compile(r"^\s*\[\[?\s*([A-Za-z0-9_.\-]+)\s*\]\]?\s*(#.*)?$")
 
 
 @dataclass(frozen=True)
@@ -81,97 +82,28 @@ def planned_pose_names(config: CellConfig, n_points: int) -> tuple[str, ...]:
 
 def write_config_with_layout(config: CellConfig, plan: LayoutAssessment, out: Path, note: str) -> Path:
     """Write a copy of the cell file with the planned measuring poses in place of its ``[[measuring_poses]]``
-    (everything else, comments included, as it was); read back and checked before it replaces ``out``."""
-    text = Path(config.path).read_text()
+    (everything else, comments included, as it was: the file is edited as a tomlkit document); read back and
+    checked before it replaces ``out``."""
+    try:
+        doc = tomlkit.parse(Path(config.path).read_text())
+    except (OSError, tomlkit.exceptions.TOMLKitError) as exc:
+        raise ConfigError(f"{config.path}: cannot read it to write the planned poses: {exc}") from exc
     names = planned_pose_names(config, len(plan.T_w0_si))
     with_flange = any(p.T_b_f is not None for p in config.measuring_poses)
     T_cf_si = [compose(config.reference.T_cf_w0, T) for T in plan.T_w0_si]
-    blocks = []
+    poses = tomlkit.aot()
     for i, (T, name) in enumerate(zip(T_cf_si, names, strict=True)):
-        lines = ["[[measuring_poses]]", f'name = "{name}"  # {note}', f"points = [{i}]", f"T_cf_si = {toml_matrix(T)}"]
+        pose = tomlkit.table()
+        pose.update({"name": commented(tomlkit.item(name), note), "points": [i], "T_cf_si": matrix(T)})
         if with_flange and config.reference.T_cf_b is not None and config.camera.T_f_c is not None:
-            T_b_f = compose(invert(config.reference.T_cf_b), T, invert(config.camera.T_f_c))
-            lines.append(f"T_b_f = {toml_matrix(T_b_f)}")
-        blocks.append("\n".join(lines) + "\n")
-    new_text = replace_measuring_poses(text, "\n".join(blocks))
-    out = Path(out)
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
-    tmp.write_text(new_text)
-    try:
-        written = load_cell_config(tmp)
-        _check_written(written, T_cf_si, out)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    os.replace(tmp, out)
-    return out
-
-
-def replace_measuring_poses(text: str, blocks: str) -> str:
-    """The TOML ``text`` with every ``[[measuring_poses]]`` table removed and ``blocks`` put where the first
-    one was (at the end when there was none)."""
-    lines = text.splitlines(keepends=True)
-    headers = _table_headers(lines)
-    kept, skipped, insert_at, skipping = [], [], None, False
-    for index, line in enumerate(lines):
-        if index in headers:
-            name = headers[index]
-            was_skipping = skipping
-            skipping = name == "measuring_poses" or name.startswith("measuring_poses.")
-            if was_skipping and not skipping:  # comments and blank lines just above the next table belong to it
-                tail = len(skipped)
-                while tail > 0 and (not skipped[tail - 1].strip() or skipped[tail - 1].lstrip().startswith("#")):
-                    tail -= 1
-                kept.extend(skipped[tail:])
-                skipped = []
-            if skipping and insert_at is None:
-                insert_at = len(kept)
-        (skipped if skipping else kept).append(line)
-    if insert_at is None:
-        insert_at = len(kept)
-        blocks = "\n" + blocks
-    rest = "".join(kept[insert_at:])
-    return "".join(kept[:insert_at]) + blocks + ("" if not rest or rest.startswith("\n") else "\n") + rest
-
-
-def toml_matrix(T: np.ndarray) -> str:
-    """A 4x4 matrix as the multi-line TOML array the cell files use."""
-    rows = ",\n    ".join("[" + ", ".join(f"{v:.12f}" for v in row) + "]" for row in T)
-    return "[\n    " + rows + ",\n]"
+            pose["T_b_f"] = matrix(compose(invert(config.reference.T_cf_b), T, invert(config.camera.T_f_c)))
+        poses.append(pose)
+    replace_section(doc, "measuring_poses", poses)
+    return write_atomic(Path(out), doc.as_string(), durable=True,
+                        before_replace=lambda written: _check_written(load_cell_config(written), T_cf_si, Path(out)))
 
 
 # --- private -----------------------------------------------------------------------------------
-
-
-def _table_headers(lines: list[str]) -> dict[int, str]:
-    """Line index -> table name of every ``[table]`` / ``[[array]]`` header outside multi-line values."""
-    headers, depth = {}, 0
-    for index, line in enumerate(lines):
-        if '"""' in line or "'''" in line:
-            raise ConfigError("the cell file has a multi-line string; --write cannot rewrite it safely")
-        match = _HEADER.match(line)
-        if depth == 0 and match:
-            headers[index] = match.group(1)
-            continue
-        depth = max(depth + _bracket_balance(line), 0)
-    return headers
-
-
-def _bracket_balance(line: str) -> int:
-    balance, quote = 0, None
-    for ch in line:
-        if quote:
-            if ch == quote:
-                quote = None
-        elif ch in "\"'":
-            quote = ch
-        elif ch == "#":
-            break
-        elif ch == "[":
-            balance += 1
-        elif ch == "]":
-            balance -= 1
-    return balance
 
 
 def _check_written(written: CellConfig, T_cf_si: list[np.ndarray], out: Path) -> None:

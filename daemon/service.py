@@ -26,24 +26,26 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from monoguide.daemon.config import CellConfig, ServiceConfig
+from monoguide.daemon.config import CellConfig, ServiceConfig, require_sections
 from monoguide.daemon.cycle_states import CYCLE_STATES, Cause, CycleError, CycleStateMachine, State
 from monoguide.daemon.journal import Journal
 from monoguide.daemon.sd_notify import Notifier, watchdog_interval_s
 from monoguide.daemon.service_devices import BACKOFF_S, CellDevices, cell_devices
+from monoguide.daemon.service_offsets import OffsetLedger
 from monoguide.daemon.service_plc import POLL_S, Edges, failed_result, status_word
 from monoguide.daemon.service_status import ServiceStatus, write_status
-from monoguide.drivers.errors import ConfigError, DeviceError, PlcAckTimeout, PlcHeartbeatLost, PlcTriggerDropped
+from monoguide.drivers.errors import DeviceError, PlcAckTimeout, PlcHeartbeatLost, PlcTriggerDropped
 from monoguide.drivers.plc import HEARTBEAT_PERIOD_S, HeartbeatWatch, Plc
 from monoguide.drivers.plc_registers import Control, CycleResult, PlcInputs, Status
 from monoguide.solver.errors import MonoguideError
 
 log = logging.getLogger(__name__)
 
-JOB_COUNT = 1  # part entries of a config: one part (job 1)
 STATUS_FILE_PERIOD_S = 1.0  # status.json rewritten at least this often
 LOOP_STALE_S = 2.0  # no poll for this long: the loop is not healthy (no heartbeat, no WATCHDOG=1)
 STOP_GRACE_S = 2.0  # on SIGTERM, how long a reported result waits for the PLC's acknowledgement
+SETTLE_RETRY_S = 2.0  # an unconfirmed offset: how often the robot is asked again while it cannot say
+STATUS_REFRESH_S = 1.0  # the status word is rewritten this often even unchanged (nobody else may hold it wrong)
 RunnerFactory = Callable[[CellConfig, Any, Any, "Path | None"], Any]
 
 
@@ -56,8 +58,7 @@ async def run_service(config: CellConfig, state_dir: Path, *, stop: asyncio.Even
     ``devices``, ``runner_factory`` and ``plc`` default to the config's (daemon/assembly.py and
     :class:`monoguide.daemon.cycle.CycleRunner`); tests of the handshake alone pass their own.
     """
-    if config.plc is None:
-        raise ConfigError(f"{config.path}: [plc]: the service needs the line's PLC (host, port)")
+    require_sections(config, ("plc",), command="run")
     from monoguide.daemon.cycle import tune_malloc
 
     tune_malloc()  # frame-sized buffers back to the system when freed: resident memory stays flat (docs/cycle.md)
@@ -94,6 +95,14 @@ class _Service:
         self.ack_timeout_s = config.plc.ack_timeout_s
         state_dir.mkdir(parents=True, exist_ok=True)
         self.journal = Journal(state_dir)
+        self.ledger = OffsetLedger(self.journal)
+        self.ledger.recover()  # intents of a killed service get their cycle's row (429) before anything else
+        self.settle_task: asyncio.Task[None] | None = None
+        self.settle_next_try = 0.0
+        self.numbering_checked = False  # a new journal continues after the PLC's register 13 (first connect)
+        self.trigger_armed = False  # TRIGGER seen low since the last cycle started: a high TRIGGER is then a new one
+        self.trigger_low_since_done = self.ack_low_since_done = False
+        self.next_refresh = 0.0
         self.machine = CycleStateMachine()
         self.watch = HeartbeatWatch(config.plc.heartbeat_timeout_s)
         self.edges: Edges | None = None  # None: the next read only learns the control word
@@ -125,6 +134,8 @@ class _Service:
     async def run(self) -> None:
         log.info("service: state directory %s, cycle counter %d, PLC %s", self.state_dir,
                  self.result.cycle_counter, self.plc.address)
+        if (unconfirmed := self.ledger.unconfirmed_error()) is not None:
+            self.machine.fire(Cause.OFFSET_UNCONFIRMED, "at start", error=unconfirmed)
         self._write_status_file()
         helpers = [asyncio.create_task(self.devices.keep_connected()), asyncio.create_task(self._status_loop())]
         try:
@@ -148,6 +159,7 @@ class _Service:
             await self._connect_plc(now)
         else:
             await self._poll(now)
+        self._settle_offsets(now)
         await self._settle()
         return False
 
@@ -161,6 +173,8 @@ class _Service:
             self.notifier.stopping()
             self.stop_deadline = now + STOP_GRACE_S
         state = self.machine.state
+        if self.settle_task is not None:
+            return False  # asking the robot which offset it holds: let it answer (its waits have timeouts)
         if self.cycle_task is not None:
             if state in (State.MEASURING, State.SOLVING, State.CHECKING):
                 self._abort(_cycle_aborted(f"the service is stopping (in state {state.value})"))
@@ -176,6 +190,8 @@ class _Service:
             return
         try:
             await self.plc.connect()  # writes status word 0 before anything else
+            if not self.numbering_checked:
+                await self._continue_numbering()
             await self.plc.write_result(self._shown_result())
             inputs = await self.plc.read_inputs()  # a trigger held across a (re)connection is not a new one
         except DeviceError as exc:
@@ -188,6 +204,18 @@ class _Service:
             return
         self.plc_connected, self.plc_attempts, self.plc_error = True, 0, None
         self.shown, self.edges, self.next_beat = Status(0), Edges(inputs.control), now
+        self.trigger_armed = Control.TRIGGER not in inputs.control
+
+    async def _continue_numbering(self) -> None:
+        """A journal without cycles (new, or recreated after it was lost) continues after the number the PLC's
+        register 13 shows, so the PLC's counter never runs 1, 2, ... again."""
+        if self.journal.cycle_counter() == 0:
+            shown = (await self.plc.read_outputs()).result.cycle_counter
+            if await asyncio.to_thread(self.journal.continue_numbering, shown):
+                log.warning("journal: no cycle in %s; numbering continues after cycle %d, which PLC register 13 "
+                            "showed", self.journal.path, shown)
+                self.result = dataclasses.replace(self.result, cycle_counter=shown)
+        self.numbering_checked = True
 
     async def _poll(self, now: float) -> None:
         try:
@@ -195,6 +223,9 @@ class _Service:
             if now >= self.next_beat:
                 await self.plc.beat()
                 self.next_beat = now + HEARTBEAT_PERIOD_S
+            if now >= self.next_refresh and self.shown is not None:
+                await self.plc.write_status(self.shown)  # unchanged: what the PLC reads is always ours
+                self.next_refresh = now + STATUS_REFRESH_S
         except DeviceError as exc:
             await self._plc_lost(exc)
             return
@@ -211,20 +242,20 @@ class _Service:
         if state in CYCLE_STATES and self.cycle_task is not None and Control.TRIGGER not in inputs.control:
             self._abort(PlcTriggerDropped(f"register 0 (control word): TRIGGER dropped while BUSY (in state "
                                           f"{state.value})"))
-        if Control.TRIGGER in rising:
+        trigger = Control.TRIGGER in inputs.control
+        if state is State.AWAITING_ACK:
+            self._await_ack(inputs, now)
+        elif trigger and self.trigger_armed:  # a rising edge, or a low seen since the last start (latched)
             if state is State.IDLE and self.cycle_task is None and self.stop_deadline is None:
                 self._start_cycle(inputs, now)
             else:
                 log.warning("trigger ignored: not READY (state %s, job %d, part tag %d)", state.value, inputs.job,
                             inputs.part_tag)
-        if state is State.AWAITING_ACK:
-            self._await_ack(inputs, now)
+            self.trigger_armed = False
+        if not trigger:
+            self.trigger_armed = True
         if state is State.FAULT and Control.FAULT_RESET in rising:
-            if self.cycle_task is None and self.watch.alive(now):
-                self.machine.fire(Cause.FAULT_RESET, "FAULT_RESET pulsed, PLC heartbeat running")
-            else:
-                log.warning("FAULT_RESET ignored: %s", "the PLC heartbeat is not back" if self.cycle_task is None
-                            else "the aborted cycle is still ending")
+            self._fault_reset(now)
 
     def _fail_hard(self, error: MonoguideError) -> None:
         """PLC heartbeat lost: FAULT now, or through the running cycle (which must end first)."""
@@ -240,17 +271,94 @@ class _Service:
             log.warning("cycle abort requested: %s %s", error.code, error.message)
 
     def _await_ack(self, inputs: PlcInputs, now: float) -> None:
-        if not self.acknowledged and Control.RESULT_ACK in inputs.control:
-            self.acknowledged = True  # DONE, RESULT_OK, ERROR cleared by _settle
-        if self.acknowledged and not inputs.control & (Control.TRIGGER | Control.RESULT_ACK):
+        """DONE shown: RESULT_ACK seen -> DONE, RESULT_OK, ERROR cleared (by _settle); then, once TRIGGER and
+        RESULT_ACK have each been seen low (not necessarily in one read: each low is latched), READY. A TRIGGER
+        seen low and already high again by then is the next part's: its cycle starts at once."""
+        control = inputs.control
+        if not self.acknowledged and Control.TRIGGER in control and self.trigger_armed:
+            log.warning("trigger ignored: not READY (DONE shown, no RESULT_ACK yet; job %d, part tag %d)", inputs.job,
+                        inputs.part_tag)
+            self.trigger_armed = False
+        if not self.acknowledged and Control.RESULT_ACK in control:
+            self.acknowledged = True
+            self.trigger_low_since_done = self.ack_low_since_done = False
+        if self.acknowledged:
+            self.trigger_low_since_done |= Control.TRIGGER not in control
+            self.ack_low_since_done |= Control.RESULT_ACK not in control
+        if self.acknowledged and self.trigger_low_since_done and self.ack_low_since_done:
             self.machine.fire(Cause.RESULT_ACKNOWLEDGED, f"cycle {self.result.cycle_counter}")
+            self.trigger_armed = True  # seen low since DONE
+            if Control.TRIGGER in control and self.stop_deadline is None:
+                log.info("TRIGGER already high again for the next part (job %d, part tag %d): starting it",
+                         inputs.job, inputs.part_tag)
+                self.trigger_armed = False
+                self._start_cycle(inputs, now)
         elif now - self.done_at > self.ack_timeout_s:
             self.machine.fire(Cause.ACK_TIMEOUT, error=PlcAckTimeout(
                 f"register 0 (control word) = 0x{int(inputs.control):04X}: no RESULT_ACK with TRIGGER low within "
                 f"{self.ack_timeout_s:g} s of DONE (cycle {self.result.cycle_counter})"))
 
+    def _fault_reset(self, now: float) -> None:
+        """FAULT_RESET's rising edge: FAULT clears when the heartbeat runs, no cycle is ending, every offset the
+        robot may hold is settled, and the journal is still the file the service opened."""
+        why = None
+        if self.cycle_task is not None:
+            why = "the aborted cycle is still ending"
+        elif not self.watch.alive(now):
+            why = "the PLC heartbeat is not back"
+        elif (unconfirmed := self.ledger.unconfirmed_error()) is not None:
+            why = f"{unconfirmed.code}: {unconfirmed.message}"
+        else:
+            try:
+                self.journal.check_identity()
+            except MonoguideError as exc:
+                why = f"{exc.code}: {exc.message}"
+        if why is None:
+            self.machine.fire(Cause.FAULT_RESET, "FAULT_RESET pulsed, PLC heartbeat running")
+        else:
+            log.warning("FAULT_RESET ignored: %s", why)
+
+    def _settle_offsets(self, now: float) -> None:
+        """An offset the robot may hold (429): ask the robot, once it is connected, no cycle runs, and not more
+        often than every SETTLE_RETRY_S."""
+        if not self.ledger.unsettled or self.settle_task is not None or self.cycle_task is not None:
+            return
+        robot = self.devices.handle("robot")
+        if robot is None or now < self.settle_next_try:
+            return
+        self.settle_next_try = now + SETTLE_RETRY_S
+        self.settle_task = asyncio.create_task(self._settle_pending(robot))
+
+    async def _settle_pending(self, robot: Any) -> None:
+        try:
+            settled = await asyncio.to_thread(self.ledger.settle_pending, robot)
+        except MonoguideError as exc:
+            log.warning("robot: cannot settle the unconfirmed offset yet (%s %s); asking again in %g s", exc.code,
+                        exc.message, SETTLE_RETRY_S)
+            exc.device = "robot"  # type: ignore[attr-defined]
+            self.devices.lost(exc)
+        else:
+            for done in settled:
+                log.warning("cycle %d: unconfirmed offset settled (%s); FAULT clears on FAULT_RESET", done.cycle,
+                            "the robot had taken it" if done.held else "the robot had not taken it")
+        finally:
+            self.settle_task = None
+
+    async def _report_lost(self, error: DeviceError, outcome: Any, number: int) -> None:
+        """The result registers could not be written: FAULT says why the cycle ended (its own error, else the
+        PLC's); a good cycle's offset is cleared from the robot, since the PLC was not told RESULT_OK."""
+        if outcome.error is None and outcome.number is not None:
+            robot = self.devices.handle("robot")
+            why = f"the PLC could not be told ({error.code})"
+            if robot is not None and await asyncio.to_thread(self.ledger.clear_unreported, robot, number, why):
+                self.result = failed_result(error.plc_code, number, self.result.job, self.result.part_tag,
+                                            self.result.quality)
+        self.machine.fire(Cause.REPORT_FAILED, error=outcome.error or error)
+        await self._plc_lost(error)
+
     async def _plc_lost(self, error: DeviceError) -> None:
         delay = BACKOFF_S[0]
+        error.device = "plc"  # type: ignore[attr-defined]  # not the camera's or the robot's: they stay open
         log.warning("PLC lost (%s %s); reconnecting in %g s", error.code, error.message, delay)
         self.plc_connected, self.plc_error, self.plc_next_try = False, error, time.monotonic() + delay
         self.shown = None
@@ -344,9 +452,12 @@ class _Service:
         error = self.plc_error
         devices = {"plc": DeviceStatus(self.plc_connected, None if error is None else
                                        {"code": error.code, "message": error.message}), **self.devices.status()}
+        fault = self.machine.fault if self.machine.state is State.FAULT else None
         try:
-            write_status(self.state_dir, ServiceStatus(self.machine.state.value, self.since, os.getpid(), time.time(),
-                                                       STATUS_FILE_PERIOD_S, devices, self.last_result))
+            write_status(self.state_dir, ServiceStatus(
+                self.machine.state.value, self.since, os.getpid(), time.time(), STATUS_FILE_PERIOD_S, devices,
+                self.last_result, None if fault is None else {"code": fault.code, "plc_code": fault.plc_code,
+                                                              "message": fault.message}))
         except OSError as exc:
             log.warning("status file: cannot write in %s: %s", self.state_dir, exc)
 
@@ -355,9 +466,10 @@ class _Service:
             self._abort(CycleError("the service ended"))
             with contextlib.suppress(Exception):
                 await self.cycle_task
-        if self.housekeeping is not None:
-            with contextlib.suppress(Exception):
-                await self.housekeeping
+        for task in (self.housekeeping, self.settle_task):
+            if task is not None:
+                with contextlib.suppress(Exception):
+                    await task
         if self.machine.can(Cause.STOP):
             self.machine.fire(Cause.STOP, "the service ended")
         if self.plc_connected:

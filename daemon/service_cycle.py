@@ -18,10 +18,11 @@ import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from monoguide.daemon.cycle import CycleAborted
 from monoguide.daemon.cycle_states import Cause, CycleError, State
 from monoguide.daemon.journal import CycleEntry
 from monoguide.daemon.service_plc import ZERO_OFFSET, ZERO_QUALITY
-from monoguide.drivers.errors import DeviceError, PlcHeartbeatLost, PlcTriggerDropped
+from monoguide.drivers.errors import DeviceError, PlcHeartbeatLost, PlcTriggerDropped, RobotOffsetUnconfirmed
 from monoguide.drivers.plc_registers import CycleResult, PlcInputs, check_job
 from monoguide.solver.errors import MonoguideError
 
@@ -33,7 +34,8 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class Outcome:
-    """What one cycle produced: its measurement and solution as far as it got, or its error."""
+    """What one cycle produced: its measurement and solution as far as it got, or its error; ``number`` and
+    ``sequence`` once the offset's intent was committed (the cycle's number is then fixed)."""
 
     started_at: float
     measurement: Any = None
@@ -41,6 +43,8 @@ class Outcome:
     written: bool = False
     error: MonoguideError | None = None
     timings_s: dict[str, float] = field(default_factory=dict)
+    number: int | None = None
+    sequence: int | None = None
 
 
 async def run_stages(service: _Service, inputs: PlcInputs) -> Outcome:
@@ -62,10 +66,11 @@ async def run_stages(service: _Service, inputs: PlcInputs) -> Outcome:
         if service.housekeeping is not None:  # the last cycle's journal work first: one journal user at a time
             await service.housekeeping
             service.housekeeping = None
+        service.journal.check_identity()  # a journal deleted or replaced: refuse before the robot moves
         job = check_job(inputs, _job_count(service))
         images_dir = None
         if service.settings.keep_images:
-            images_dir = service.journal.images_dir / f"cycle-{service.journal.cycle_counter() + 1}"
+            images_dir = service.journal.images_dir / f"cycle-{service.journal.next_number()}"
         devices = (service.devices.handle("camera"), service.devices.handle("robot"))
         if service.runner is None or service.runner_devices != devices:  # first cycle, or a device reopened
             service.runner = service.runner_factory(service.config, *devices, images_dir)
@@ -79,11 +84,11 @@ async def run_stages(service: _Service, inputs: PlcInputs) -> Outcome:
         await stage(runner.check, outcome.measurement, outcome.solution)
         machine.fire(Cause.CHECKS_PASSED)
         check_abort()  # the last look: after an abort nothing is written to the robot
-        sequence = await asyncio.to_thread(runner.write, outcome.solution)
+        sequence = await _write(service, runner, outcome)
         outcome.written = True
         machine.fire(Cause.OFFSET_ACKNOWLEDGED, f"sequence {sequence}")
-        if isinstance(service.abort_error, PlcTriggerDropped) or getattr(service.abort_error, "code", "") == \
-                "CYCLE_ABORTED":  # too late to abort: the robot has the offset, and the PLC is told so (RESULT_OK)
+        if isinstance(service.abort_error, PlcTriggerDropped | CycleAborted):
+            # too late to abort: the robot has the offset, and the PLC is told so (RESULT_OK)
             log.warning("%s came while the offset was being written: the robot acknowledged it (sequence %s); "
                         "reported as RESULT_OK", service.abort_error.code, sequence)
             service.abort.clear()
@@ -95,8 +100,28 @@ async def run_stages(service: _Service, inputs: PlcInputs) -> Outcome:
     return outcome
 
 
+async def _write(service: _Service, runner: Any, outcome: Outcome) -> int:
+    """The offset to the robot, its intent committed first; a failure after the send is settled at once
+    (:meth:`OffsetLedger.after_failed_write`) or ends in ``ROBOT_OFFSET_UNCONFIRMED``."""
+    solution, ledger = outcome.solution, service.ledger
+    number = service.journal.next_number()
+
+    def before_send(sequence: int) -> None:
+        ledger.intend(number, sequence, tuple(float(v) for v in solution.offset), solution.D_b.tolist())
+        outcome.number, outcome.sequence = number, sequence
+
+    try:
+        return await asyncio.to_thread(runner.write, solution, before_send)
+    except MonoguideError as exc:
+        if outcome.sequence is None:
+            raise  # nothing went to the robot (the journal refused the intent, or the robot was not ready)
+        robot = service.devices.handle("robot")
+        raise await asyncio.to_thread(ledger.after_failed_write, robot, number, outcome.sequence, exc) from exc
+
+
 async def report(self: _Service, inputs: PlcInputs, triggered_at: float, outcome: Outcome) -> None:
-    """Journal the cycle (committed before DONE), then the result registers, then DONE in its own write."""
+    """Journal the cycle (committed before DONE), then the result registers, then DONE in its own write. An
+    offset the robot may hold but monoguide could not settle (429) is journaled and shown as FAULT, no DONE."""
     error = outcome.error
     if error is None:
         pass  # OFFSET_ACKNOWLEDGED fired by the stages: REPORTING
@@ -104,12 +129,19 @@ async def report(self: _Service, inputs: PlcInputs, triggered_at: float, outcome
         self.machine.fire(Cause.HEARTBEAT_LOST, error=error)
     else:
         self.machine.fire(Cause.FAILED, error=error)
-    if error is not None and self.devices.lost(error):
-        log.warning("cycle failed with a lost device: reconnecting")
+    if error is not None:
+        self.devices.lost(error)  # reopens the one device whose connection was lost (and says which)
     started = time.monotonic()
+    intent_outcome = None
+    if error is None and outcome.number is not None:
+        intent_outcome = self.ledger.acknowledged(outcome.number, outcome.sequence or 0)
     try:
-        number = await asyncio.to_thread(self.journal.commit_cycle, journal_entry(outcome, inputs))
+        number = await asyncio.to_thread(self.journal.commit_cycle, journal_entry(outcome, inputs), outcome.number,
+                                         intent_outcome=intent_outcome)
     except MonoguideError as exc:
+        if error is None and outcome.number is not None:  # the robot holds an offset nobody can be told of
+            await asyncio.to_thread(self.ledger.clear_unreported, self.devices.handle("robot"), outcome.number,
+                                    f"the journal could not commit cycle {outcome.number} ({exc.code})")
         if self.machine.can(Cause.REPORT_FAILED):
             self.machine.fire(Cause.REPORT_FAILED, error=exc)
         return
@@ -118,14 +150,15 @@ async def report(self: _Service, inputs: PlcInputs, triggered_at: float, outcome
     self.last_result = {"cycle": number, "status": "error" if error else "ok", "job": inputs.job,
                         "part_tag": inputs.part_tag, "error_code": error.code if error else None,
                         "finished_at": time.time()}
+    if isinstance(error, RobotOffsetUnconfirmed) and self.machine.can(Cause.OFFSET_UNCONFIRMED):
+        self.machine.fire(Cause.OFFSET_UNCONFIRMED, error=error)  # FAULT: register 11 = 429, 13 = this cycle
     if self.machine.state is not State.REPORTING:  # FAULT already: register 11 shows the fault's code,
         self.fault_shown = None  # register 13 the new counter (rewritten by _show)
         return
     try:
         await self.plc.write_result(self.result)
     except DeviceError as exc:
-        self.machine.fire(Cause.REPORT_FAILED, error=exc)
-        await self._plc_lost(exc)
+        await self._report_lost(exc, outcome, number)
         return
     self.outcome_ok, self.done_at = error is None, time.monotonic()
     self.machine.fire(Cause.REPORTED, f"cycle {number}: {'RESULT_OK' if error is None else error.code}")

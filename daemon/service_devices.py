@@ -4,7 +4,8 @@ The drivers block, so every open and close runs in a worker thread (``asyncio.to
 event loop keeps polling the PLC meanwhile. A device that cannot be opened is retried after a growing
 delay (:data:`BACKOFF_S`), and each attempt says so in the log (``camera: cannot connect (...);
 reconnecting in 2 s``). A cycle that fails with a lost connection hands its error to :meth:`lost`: the
-devices are closed and reopened in the background, and the cell is not READY until they are back.
+device it came from is closed and reopened in the background (the others stay open), and the cell is not
+READY until it is back.
 """
 
 from __future__ import annotations
@@ -65,10 +66,15 @@ class CellDevices:
                 for name, slot in self.slots.items()}
 
     def lost(self, error: MonoguideError) -> bool:
-        """A cycle met ``error``; when it is a lost connection, reopen every device. True if so."""
+        """A cycle met ``error``; when it is a lost connection, reopen the device it came from (``error.device``,
+        set where the device was called; every device when it does not say). True if a device is reopened."""
         if not isinstance(error, CONNECTION_LOST):
             return False
-        for slot in self.slots.values():
+        device = getattr(error, "device", None)
+        slots = [self.slots[device]] if device in self.slots else [] if device is not None else self.slots.values()
+        if not slots:
+            return False  # another device's (the PLC's: the service reconnects it itself)
+        for slot in slots:
             slot.last_error = error
             if slot.handle is not None:
                 handle, slot.handle = slot.handle, None

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from monoguide.daemon.cycle_states import State
+from monoguide.drivers.atomic_file import write_atomic
 from monoguide.solver.errors import MonoguideError
 
 STATUS_FILE = "status.json"
@@ -53,6 +54,7 @@ class ServiceStatus:
     heartbeat_s: float = DEFAULT_HEARTBEAT_S  # the service rewrites the file at least this often
     devices: dict[str, DeviceStatus] = field(default_factory=dict)
     last_result: dict[str, Any] | None = None  # {"cycle", "status", "error_code", "finished_at", ...}
+    fault: dict[str, Any] | None = None  # while latched: {"code", "plc_code", "message"} of what latched FAULT
 
     def as_dict(self) -> dict[str, Any]:
         return {"format": FORMAT, **asdict(self)}
@@ -67,10 +69,7 @@ class Liveness:
 def write_status(state_dir: Path | str, status: ServiceStatus) -> Path:
     """Replace ``<state_dir>/status.json`` atomically with ``status``; return its path."""
     path = Path(state_dir) / STATUS_FILE
-    partial = path.with_name(f".{STATUS_FILE}.{os.getpid()}.tmp")
-    partial.write_text(json.dumps(status.as_dict(), allow_nan=False, indent=1) + "\n")
-    os.replace(partial, path)
-    return path
+    return write_atomic(path, json.dumps(status.as_dict(), allow_nan=False, indent=1) + "\n")
 
 
 def read_status(state_dir: Path | str) -> ServiceStatus | None:
@@ -142,8 +141,11 @@ def _parse(path: Path, data: Any) -> ServiceStatus:
     last_result = data.get("last_result")
     if last_result is not None and not isinstance(last_result, dict):
         raise bad(f"last_result: expected an object or null, got {last_result!r}")
+    fault = data.get("fault")
+    if fault is not None and not isinstance(fault, dict):
+        raise bad(f"fault: expected an object or null, got {fault!r}")
     return ServiceStatus(data["state"], times["since"], pid, times["updated_at"], times["heartbeat_s"], parsed,
-                         last_result)
+                         last_result, fault)
 
 
 def _pid_alive(pid: int) -> bool:

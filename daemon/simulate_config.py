@@ -19,26 +19,29 @@ the truth of ``--config``.
 the part of the robot's repeatability that its reported pose does not see (the camera pose error the
 service cannot correct).
 
-The TOML writer here covers what a cell config holds (tables, arrays of tables, strings, numbers,
-booleans, nested arrays); comments of the source are not carried over.
+The derived configs are written with tomlkit (:func:`dumps_toml`): every value exactly as read, the matrices
+one row per line; comments of the source are not carried over.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import random
-import re
 import socket
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import tomlkit
+import tomlkit.exceptions
+
 from monoguide.daemon.config import load_cell_config
 from monoguide.daemon.plan_layout import cell_layout
+from monoguide.drivers.atomic_file import write_atomic
 from monoguide.drivers.errors import ConfigError
+from monoguide.drivers.toml_format import matrix
 from monoguide.solver.planning import assess_layout
 
 ROBOTS = {"ur": ("sim-ur", 30004), "kuka": ("sim-kuka", 54600)}
@@ -48,7 +51,6 @@ FAULT_TIMEOUTS = {  # --faults: shorter waits than a line's, so that a stalled d
     "plc": {"ack_timeout_s": 3.0},
 }
 REPORTED_FRACTION = 0.0  # [sim] reported_repeatability_fraction of a run whose config does not set it
-_BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
 
 
 @dataclass(frozen=True)
@@ -117,15 +119,15 @@ def derive_config(source: Path, work_dir: Path, *, seed: int | None = None, robo
             for key, value in values.items():
                 data[section][key] = min(float(data[section].get(key, value)), value)
     config = work_dir / "cell.toml"
-    config.write_text(f"# derived by `monoguide simulate` from {Path(source).resolve()}\n" + dumps_toml(data))
+    write_atomic(config, dumps_toml(data, f"derived by `monoguide simulate` from {Path(source).resolve()}"))
     cell = DerivedCell(config, work_dir / "state", work_dir / "truth.jsonl", sim_state, host, data)
     if calibration is None:
         return cell
     service_data, taken = with_calibration(data, _read_toml(calibration, "--calibration"), calibration)
     service_data["sim"]["truth_config"] = str(config)
     service = work_dir / "service.toml"
-    service.write_text(f"# derived by `monoguide simulate` from {Path(source).resolve()} with the calibration of "
-                       f"{Path(calibration).resolve()}\n" + dumps_toml(service_data))
+    write_atomic(service, dumps_toml(service_data, f"derived by `monoguide simulate` from {Path(source).resolve()} "
+                                                   f"with the calibration of {Path(calibration).resolve()}"))
     load_cell_config(service)  # the service must be able to read it
     return dataclasses.replace(cell, service_config=service,
                                calibration={"path": str(Path(calibration).resolve()), "values": taken})
@@ -214,57 +216,29 @@ def port_free(host: str, port: int) -> bool:
 # --- TOML text ----------------------------------------------------------------------------------
 
 
-def dumps_toml(data: dict[str, Any]) -> str:
-    """TOML text for ``data`` (what :func:`tomllib.loads` returns for a cell config): ``loads(dumps(d)) == d``."""
-    lines: list[str] = []
-    _table(lines, (), data)
-    return "\n".join(lines).lstrip("\n") + "\n"
+def dumps_toml(data: dict[str, Any], comment: str | None = None) -> str:
+    """TOML text for ``data`` (what :func:`tomllib.loads` returns for a cell config), ``comment`` (lines) at its
+    top: ``loads(dumps(d)) == d``. Written with tomlkit; a matrix (a list of lists of numbers) one row per line,
+    its numbers exactly as they are (a derived config is the source's values, not a rounding of them)."""
+    doc = tomlkit.document()
+    for line in comment.splitlines() if comment else ():
+        doc.add(tomlkit.comment(line))
+    try:
+        doc.update(_readable(data))
+        return doc.as_string()
+    except (TypeError, ValueError, tomlkit.exceptions.TOMLKitError) as exc:
+        raise ConfigError(f"cannot write the derived config as TOML: {exc}") from exc
 
 
-def _table(lines: list[str], path: tuple[str, ...], table: dict[str, Any], array_item: bool = False) -> None:
-    plain = {k: v for k, v in table.items() if not _is_table(v) and not _is_table_array(v)}
-    if path and (plain or array_item or not any(_is_table(v) or _is_table_array(v) for v in table.values())):
-        header = ".".join(_key(p) for p in path)
-        lines.append("")
-        lines.append(f"[[{header}]]" if array_item else f"[{header}]")
-    for key, value in plain.items():
-        lines.append(f"{_key(key)} = {_value(value)}")
-    for key, value in table.items():
-        if _is_table(value):
-            _table(lines, (*path, key), value)
-    for key, value in table.items():
-        if _is_table_array(value):
-            for item in value:
-                _table(lines, (*path, key), item, array_item=True)
-
-
-def _is_table(value: Any) -> bool:
-    return isinstance(value, dict)
-
-
-def _is_table_array(value: Any) -> bool:
-    return isinstance(value, list) and bool(value) and all(isinstance(v, dict) for v in value)
-
-
-def _key(key: str) -> str:
-    return key if _BARE_KEY.match(key) else json.dumps(key)
-
-
-def _value(value: Any) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
-        if math.isnan(value):
-            return "nan"
-        if math.isinf(value):
-            return "inf" if value > 0 else "-inf"
-        return repr(value)
-    if isinstance(value, str):
-        return json.dumps(value)  # JSON's escapes are TOML basic-string escapes
-    if isinstance(value, list):
-        return "[" + ", ".join(_value(v) for v in value) + "]"
+def _readable(value: Any) -> Any:
     if isinstance(value, dict):
-        return "{" + ", ".join(f"{_key(k)} = {_value(v)}" for k, v in value.items()) + "}"
-    raise ConfigError(f"cannot write {value!r} ({type(value).__name__}) as TOML")
+        return {key: _readable(v) for key, v in value.items()}
+    if isinstance(value, list):
+        if value and all(isinstance(row, list) and row and all(_is_number(v) for v in row) for row in value):
+            return matrix(value, decimals=None)
+        return [_readable(v) for v in value]
+    return value
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)

@@ -174,7 +174,7 @@ def run_simulation(options: RunOptions, progress: Progress | None = None) -> Run
         service_exit = _finish_service(service, progress, by_itself=not options.faults)
         children.stop_all()
         rows = _journal_rows(cell.state_dir)
-        return RunResult(cell, records, rows, read_truth_log(cell.truth_log), faults, samples,
+        return RunResult(cell, records, rows, read_truth_log(cell.truth_log, grasps=True), faults, samples,
                          _logged_codes(service_log), service_exit, time.monotonic() - started)
     finally:
         children.stop_all()

@@ -4,7 +4,8 @@
   offset it read from registers 16–27),
 - the **service's journal** (one row per cycle: result or error code, ``timings_s`` per stage),
 - the **truth log** of the simulated cell's part supply (per part: the true pose, the ideal offset, the
-  offset the robot actually applied and the grasp error it gave).
+  offset the robot actually applied and the grasp error it gave; per grasp the line's go asked for: whether the
+  robot program's interlock ran it or refused it, for a stale offset or for none).
 
 A cycle is one part the line played. Its journal row is found by the cycle counter the line read (register
 13), else by the part tag; the truth-log line of the part that was grasped is found by the offset the robot
@@ -73,11 +74,18 @@ class InjectedFault:
         return f"{self.device} {self.name}"
 
 
-def read_truth_log(path: Path) -> list[dict[str, Any]]:
-    """The truth log's lines (a missing file: none)."""
+def read_truth_log(path: Path, grasps: bool = False) -> list[dict[str, Any]]:
+    """The truth log's part lines (a missing file: none); ``grasps``: its grasp lines too (``{"grasp": {...}}``, one
+    per go the simulated line gave), in the file's order."""
     if not Path(path).exists():
         return []
-    return [json.loads(line) for line in Path(path).read_text().splitlines() if line.strip()]
+    lines = [json.loads(line) for line in Path(path).read_text().splitlines() if line.strip()]
+    return lines if grasps else [line for line in lines if "grasp" not in line]
+
+
+def grasps(truth: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The grasp lines of the truth log (``{"grasp": {...}}``): one per go the simulated line gave."""
+    return [line["grasp"] for line in truth if isinstance(line.get("grasp"), dict)]
 
 
 def join_cycles(plc_records: Sequence[dict[str, Any]], journal_rows: Iterable[Any], truth: Sequence[dict[str, Any]],
@@ -171,6 +179,7 @@ def summarize(cycles: Sequence[dict[str, Any]], truth: Sequence[dict[str, Any]],
         "compute_ms_median": _median(compute),
         "offsets_written_on_failure": on_failure,
         "offsets_unacknowledged": unacknowledged,
+        **_grasp_counts(truth),
         "rss_mb": None if rss is None else rss.get("rss_mb"),
         "rss_max_mb": None if rss is None else rss.get("rss_max_mb"),
         "faults": [_fault_outcome(f, cycles, logged) for f in faults],
@@ -212,6 +221,9 @@ def render(console: Console, cycles: Sequence[dict[str, Any]], summary: dict[str
     table.add_row("compute median", f"{_fmt(summary['compute_ms_median'], 1)} ms (hole finding + solve + checks)")
     table.add_row("errors by code", ", ".join(f"{k} {v}" for k, v in summary["errors"].items()) or "none")
     table.add_row("offsets written on failure", str(summary["offsets_written_on_failure"]))
+    if summary.get("grasps_ran") or summary.get("grasps_refused"):
+        table.add_row("grasps (robot interlock)", f"{summary['grasps_ran']} ran, {summary['grasps_refused']} refused "
+                      f"({summary['grasps_refused_stale']} for a stale offset)")
     if summary["offsets_unacknowledged"]:
         table.add_row("offsets applied, not acknowledged", f"{summary['offsets_unacknowledged']} (robot no-ack fault)")
     table.add_row("service memory", f"{_fmt(summary['rss_mb'], 1)} MB resident at the end "
@@ -269,6 +281,14 @@ def _offsets_on_failure(cycles: Sequence[dict[str, Any]], truth: Sequence[dict[s
         else:
             on_failure += 1
     return on_failure, unacknowledged
+
+
+def _grasp_counts(truth: Sequence[dict[str, Any]]) -> dict[str, int]:
+    """How many grasps the robot program ran and refused (its interlock: no valid offset; stale: one was held)."""
+    done = grasps(truth)
+    refused = [g for g in done if g.get("outcome") == "refused"]
+    return {"grasps_ran": sum(g.get("outcome") == "ran" for g in done), "grasps_refused": len(refused),
+            "grasps_refused_stale": sum(g.get("reason") == "stale offset" for g in refused)}
 
 
 def _fault_outcome(fault: InjectedFault, cycles: Sequence[dict[str, Any]], logged: set[str]) -> dict[str, Any]:

@@ -1,11 +1,19 @@
 """Where the service keeps its state (journal, images, status file): one rule for every command.
 
 ``--state-dir`` when given; else systemd's ``$STATE_DIRECTORY`` (set by ``StateDirectory=`` in the
-unit; when the unit lists several, the first); else ``/var/lib/monoguide``.
+unit; when the unit lists several, the first); else ``/var/lib/monoguide``. An empty ``--state-dir`` is a
+usage error, never the current directory.
+
+One service per state directory: :class:`ServiceLock` holds an exclusive ``flock`` on ``service.lock`` for the
+service's whole life (the kernel drops it when the process ends, however it ends); a second service is refused
+with :class:`StateDirInUse` naming the first one's PID. Readers (``status``, ``journal``) never take it.
 """
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import fcntl
 import os
 from collections.abc import Mapping
 from pathlib import Path
@@ -13,6 +21,7 @@ from pathlib import Path
 from monoguide.solver.errors import MonoguideError
 
 DEFAULT_STATE_DIR = Path("/var/lib/monoguide")
+LOCK_FILE = "service.lock"
 STATE_DIR_HELP = "The service's state directory (default: $STATE_DIRECTORY, else /var/lib/monoguide)."
 
 
@@ -23,9 +32,27 @@ class StateDirMissing(MonoguideError):
     plc_code = 640
 
 
+class StateDirInvalid(MonoguideError):
+    """``--state-dir`` was given but empty (or blank): refused rather than taken for the current directory."""
+
+    code = "STATE_DIR_INVALID"
+    plc_code = 645
+
+
+class StateDirInUse(MonoguideError):
+    """Another service holds this state directory (its lock file is locked); the message names its PID."""
+
+    code = "STATE_DIR_IN_USE"
+    plc_code = 644
+
+
 def state_dir(given: Path | str | None = None, environ: Mapping[str, str] | None = None) -> Path:
-    """The state directory: ``given``, else ``$STATE_DIRECTORY`` (its first entry), else the default."""
-    if given is not None and str(given):
+    """The state directory: ``given``, else ``$STATE_DIRECTORY`` (its first entry), else the default. An empty
+    ``given`` is :class:`StateDirInvalid` (``Path("")`` would be the current directory)."""
+    if given is not None:
+        if not str(given).strip():
+            raise StateDirInvalid("--state-dir is empty: give the service's state directory (or leave the option "
+                                  "out for $STATE_DIRECTORY, else /var/lib/monoguide)")
         return Path(given)
     environ = os.environ if environ is None else environ
     from_systemd = environ.get("STATE_DIRECTORY", "").split(":")[0]
@@ -42,3 +69,51 @@ def existing_state_dir(given: Path | str | None = None) -> Path:
         raise StateDirMissing(f"state directory {path} ({origin}) {what}: no service has run here;"
                               " give --state-dir the service's directory")
     return path
+
+
+class ServiceLock:
+    """The exclusive lock of one state directory, held from :meth:`acquire` until :meth:`release` or the end of
+    the process. The file holds the holder's PID (for the message of the one refused)."""
+
+    def __init__(self, directory: Path) -> None:
+        self.path = Path(directory) / LOCK_FILE
+        self._fd: int | None = None
+
+    def acquire(self) -> None:
+        """Take the lock or raise :class:`StateDirInUse` naming the PID that holds it."""
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o640)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            holder = _read_pid(fd)
+            os.close(fd)
+            if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                raise
+            raise StateDirInUse(f"state directory {self.path.parent} is in use by another monoguide service "
+                                f"(PID {holder or 'unknown'}, lock {self.path}): one service per state directory; "
+                                "stop that one or give --state-dir another directory") from None
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        self._fd = fd
+
+    def release(self) -> None:
+        if self._fd is not None:
+            with contextlib.suppress(OSError):
+                os.ftruncate(self._fd, 0)
+            os.close(self._fd)  # closing drops the flock
+            self._fd = None
+
+    def __enter__(self) -> ServiceLock:
+        self.acquire()
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.release()
+
+
+def _read_pid(fd: int) -> int | None:
+    try:
+        text = os.pread(fd, 32, 0).decode(errors="replace").strip()
+    except OSError:
+        return None
+    return int(text) if text.isdigit() else None

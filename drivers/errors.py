@@ -143,6 +143,24 @@ class RobotMessageInvalid(RobotError):
     plc_code = 428
 
 
+class RobotOffsetUnconfirmed(RobotError):
+    """The offset was sent but its acknowledgement was not seen (controller lost, no answer in time, the service
+    ended): the robot may hold this cycle's offset. Do not grasp; FAULT stays latched until monoguide has
+    settled it against the offset the robot reports it holds and cleared it (docs/plc-interface.md)."""
+
+    code = "ROBOT_OFFSET_UNCONFIRMED"
+    plc_code = 429
+
+
+class RobotSyncTimeout(RobotError):
+    """The robot program did not answer sequence 0 after a connect in time (acknowledged 0 with status 2; an
+    older template answers status 0, or the program is stuck in a move): nothing was sent. Load the robot programs
+    of this version (docs/robot-interface.md)."""
+
+    code = "ROBOT_SYNC_TIMEOUT"
+    plc_code = 430
+
+
 # --- PLC (450-469) ----------------------------------------------------------------------------
 
 

@@ -6,10 +6,13 @@ message ends too. The robot sends ``<Robot>`` reports; the daemon sends ``<Senso
 (``docs/robot-interface.md`` has the schema):
 
     <Robot><State Mode="AUT" Safety="NORMAL" Program="1"/><Pos X=".." Y=".." Z=".." A=".." B=".." C=".."/>
-      <Handshake Ack="17" InPosition="2" Status="0"/><Ipoc>123456</Ipoc></Robot>
+      <Handshake Ack="17" InPosition="2" Status="0" Held="16" Valid="1"/><Ipoc>123456</Ipoc></Robot>
     <Sensor><Request Seq="18" Command="2" Pose="0"/><Offset X=".." Y=".." Z=".." A=".." B=".." C=".."/></Sensor>
 
-Lengths in mm, angles in degrees, A B C the Z-Y'-X'' Euler angles of KUKA frames. The parser refuses any
+Lengths in mm, angles in degrees, A B C the Z-Y'-X'' Euler angles of KUKA frames. Numbers go out as fixed-point
+decimals (``-12.500000``), never in exponent form (``3e-05``), which KRL's REAL reading is not documented to take;
+six decimals are 1 nm and 1e-6 deg, finer than the REAL (about 7 significant digits) that stores them. The parser
+refuses any
 document type declaration (defusedxml, ``forbid_dtd``), so an entity-expansion bomb is refused before it
 expands; anything malformed, truncated, oversized or unexpected is :class:`RobotMessageInvalid` quoting it.
 """
@@ -33,6 +36,8 @@ SENSOR_ROOT = "Sensor"
 FRAME_KEYS = ("X", "Y", "Z", "A", "B", "C")
 MAX_ABS_MM = 1e5  # no robot reaches 100 m: a bigger number is a broken message
 MAX_ABS_DEG = 360.0
+REQUEST_DECIMALS = 6  # the daemon's numbers: 1 nm, 1e-6 deg
+REPORT_DECIMALS = 9  # the simulated controller's (a real one writes what EKI_SetReal makes of a REAL)
 
 
 @dataclass(frozen=True)
@@ -60,6 +65,8 @@ class KukaReport:
     program_status: int
     ipoc: int
     identity: tuple[str, str, str, str] | None = None  # vendor, model, serial, software
+    held_sequence: int = 0  # the number of the offset the program took last (0: none)
+    offset_valid: bool = False  # its grasp interlock
 
 
 # --- framing -----------------------------------------------------------------------------------
@@ -98,7 +105,8 @@ def encode_request(request: KukaRequest) -> bytes:
             raise ValueError(f"{name} {value} outside 0..2^31-1")
     offset = _checked_frame(request.offset, ValueError, "offset")
     return (f'<{SENSOR_ROOT}><Request Seq="{request.sequence}" Command="{request.command}" '
-            f'Pose="{request.pose_number}"/>{_frame_xml("Offset", offset)}</{SENSOR_ROOT}>').encode("ascii")
+            f'Pose="{request.pose_number}"/>{_frame_xml("Offset", offset, REQUEST_DECIMALS)}</{SENSOR_ROOT}>'
+            ).encode("ascii")
 
 
 def decode_request(message: bytes) -> KukaRequest:
@@ -116,8 +124,9 @@ def encode_report(report: KukaReport) -> bytes:
     parts += [
         f"<State Mode={quoteattr(report.mode)} Safety={quoteattr(report.safety)} "
         f'Program="{1 if report.program_running else 0}"/>',
-        _frame_xml("Pos", report.pos),
-        f'<Handshake Ack="{report.ack_sequence}" InPosition="{report.in_position}" Status="{report.program_status}"/>',
+        _frame_xml("Pos", report.pos, REPORT_DECIMALS),
+        f'<Handshake Ack="{report.ack_sequence}" InPosition="{report.in_position}" Status="{report.program_status}" '
+        f'Held="{report.held_sequence}" Valid="{1 if report.offset_valid else 0}"/>',
         f"<Ipoc>{report.ipoc}</Ipoc></{ROBOT_ROOT}>",
     ]
     return "".join(parts).encode("ascii")
@@ -135,6 +144,9 @@ def decode_report(message: bytes) -> KukaReport:
     program = _attr(state, "Program")
     if program not in ("0", "1"):
         raise RobotMessageInvalid(f"<State Program> must be 0 or 1, got {program!r}")
+    valid = _attr(hs, "Valid")
+    if valid not in ("0", "1"):
+        raise RobotMessageInvalid(f"<Handshake Valid> must be 0 or 1, got {valid!r}")
     return KukaReport(
         mode=_attr(state, "Mode"),
         safety=_attr(state, "Safety"),
@@ -146,6 +158,8 @@ def decode_report(message: bytes) -> KukaReport:
         ipoc=ipoc_value,
         identity=None if identity is None else tuple(  # type: ignore[arg-type]
             _attr(identity, k) for k in ("Vendor", "Model", "Serial", "Software")),
+        held_sequence=_int(hs, "Held"),
+        offset_valid=valid == "1",
     )
 
 
@@ -168,9 +182,15 @@ def parse(message: bytes, root_tag: str) -> ET.Element:
 # --- private -----------------------------------------------------------------------------------
 
 
-def _frame_xml(tag: str, frame: tuple[float, ...]) -> str:
-    # shortest round-trip form: the number arrives exactly as sent (KRL's REAL then keeps ~7 digits of it)
-    return f"<{tag} " + " ".join(f'{k}="{float(v)!r}"' for k, v in zip(FRAME_KEYS, frame, strict=True)) + "/>"
+def _frame_xml(tag: str, frame: tuple[float, ...], decimals: int) -> str:
+    return f"<{tag} " + " ".join(f'{k}="{fixed_point(v, decimals)}"' for k, v in zip(FRAME_KEYS, frame,
+                                                                                   strict=True)) + "/>"
+
+
+def fixed_point(value: float, decimals: int) -> str:
+    """``value`` as a fixed-point decimal with ``decimals`` places, never an exponent; -0 is written 0."""
+    text = f"{float(value):.{decimals}f}"
+    return text[1:] if text.startswith("-") and not text.strip("-0.") else text
 
 
 def _child(element: ET.Element, tag: str) -> ET.Element:

@@ -3,8 +3,12 @@
 Three layers: :class:`XmlChannel` moves whole XML messages over the socket with a deadline;
 :mod:`monoguide.drivers.kuka_protocol` frames, encodes and decodes them; :class:`KukaRobot` gives them their
 meaning (reports -> :class:`RobotStatus`, requests with sequence numbers, waiting for in position and for
-the acknowledgement). The robot reports continuously; the adapter keeps the latest report, and a report
-older than ``stale_timeout_s`` means the controller has stalled.
+the acknowledgement). The robot reports continuously (its program's timer interrupt, whether or not a request
+came: the daemon never waits for a report it would have to ask for); the adapter keeps the latest report, and a
+report older than ``stale_timeout_s`` means the controller has stalled.
+
+EKI serves one client, and after a disconnect only the robot program's ``EKI_Open`` serves again: a connection
+refused, or closed before its first report, is tried again until ``connect_timeout_s`` has passed.
 """
 
 from __future__ import annotations
@@ -22,7 +26,6 @@ from monoguide.drivers.errors import (
     DeviceTimeout,
 )
 from monoguide.drivers.robot import (
-    COMMAND_NONE,
     COMMAND_OFFSET,
     HandshakeRobot,
     RobotIdentity,
@@ -33,6 +36,7 @@ from monoguide.solver.frames import T_to_kuka_frame, kuka_frame_to_T
 log = logging.getLogger(__name__)
 
 POLL_S = 0.01
+RECONNECT_PAUSE_S = 0.05  # between two attempts while the robot program has not yet reopened its channel
 
 
 class XmlChannel:
@@ -111,26 +115,39 @@ class KukaRobot(HandshakeRobot):
     # --- private -------------------------------------------------------------------------------
 
     def _connect(self) -> None:
-        self.close()
+        deadline = time.monotonic() + self.connect_timeout_s
+        while True:
+            try:
+                self._open_channel(deadline)
+                break
+            except (DeviceNotFound, DeviceDisconnected) as exc:
+                self.close()
+                if time.monotonic() + RECONNECT_PAUSE_S > deadline:
+                    raise DeviceNotFound(f"{self.name}: cannot connect within {self.connect_timeout_s:g} s: "
+                                         f"{exc.message}") from exc
+                time.sleep(RECONNECT_PAUSE_S)  # the program reopens its channel only after it noticed the last close
+        assert self._latest is not None
+        identity = self._reported_identity or ("KUKA", "unknown", "", "")
+        self._identity = RobotIdentity(*identity, address=f"{self.host}:{self.port}")
+        # the handshake is synchronised (sequence 0) before the first request: HandshakeRobot._synchronise
+        self._connected(report_to_status(self._latest))
+        log.info("%s: connected: %s %s, %s", self.name, *identity[:2], identity[3])
+
+    def _open_channel(self, deadline: float) -> None:
+        """One connection attempt, until its first report."""
         try:
-            sock = socket.create_connection((self.host, self.port), timeout=self.connect_timeout_s)
+            sock = socket.create_connection((self.host, self.port),
+                                            timeout=max(0.05, min(self.connect_timeout_s, deadline - time.monotonic())))
         except OSError as exc:
             raise DeviceNotFound(f"{self.name}: cannot connect: {exc}") from exc
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self._channel = XmlChannel(sock, self.name)
         self._latest = None
         self._reported_identity: tuple[str, str, str, str] | None = None
-        deadline = time.monotonic() + self.connect_timeout_s
         while self._latest is None:
             if time.monotonic() > deadline:
                 raise DeviceTimeout(f"{self.name}: no report within {self.connect_timeout_s:g} s of connecting")
             self._pump(max(0.0, deadline - time.monotonic()))
-        identity = self._reported_identity or ("KUKA", "unknown", "", "")
-        self._identity = RobotIdentity(*identity, address=f"{self.host}:{self.port}")
-        # sequence 0 clears the program's handshake; continue after the last number it acknowledged
-        self._send(kuka.KukaRequest(0, COMMAND_NONE, 0))
-        self._sequence = self._latest.ack_sequence
-        log.info("%s: connected: %s %s, %s", self.name, *identity[:2], identity[3])
 
     def _pump(self, wait_s: float) -> None:
         assert self._channel is not None
@@ -167,4 +184,5 @@ def report_to_status(report: kuka.KukaReport) -> RobotStatus:
         T_b_f=kuka_frame_to_T(*report.pos), mode=report.mode, safety=report.safety,
         program_running=report.program_running, in_position=report.in_position, ack_sequence=report.ack_sequence,
         program_status=report.program_status, timestamp_s=report.ipoc / 1000.0,
+        held_sequence=report.held_sequence, offset_valid=report.offset_valid,
     )

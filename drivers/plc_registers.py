@@ -107,7 +107,7 @@ class CycleResult:
     """
 
     error_code: int
-    cycle_counter: int
+    cycle_counter: int  # the journal's cycle number (any size); register 13 shows it modulo 65536
     job: int
     part_tag: int
     offset: tuple[float, float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -150,6 +150,16 @@ def int16_from_word(word: int) -> int:
 def wrap_uint16(value: int) -> int:
     """Counters (heartbeat, cycle counter) wrap 65535 -> 0."""
     return value & UINT16_MAX
+
+
+def cycle_counter_word(number: int) -> int:
+    """Register 13 for the journal's cycle ``number`` (0, 1, 2, ... without end): ``number`` modulo 65536, so
+    the register counts 65534, 65535, 0, 1, ... as its contract says. A negative or non-integer number is a bug
+    and raises :class:`DeviceRequestInvalid`."""
+    if isinstance(number, bool) or not isinstance(number, int) or number < 0:
+        raise DeviceRequestInvalid(f"register {CYCLE_COUNTER} ({register_name(CYCLE_COUNTER)}): cycle number "
+                                   f"{number!r} is not a whole number >= 0")
+    return wrap_uint16(number)
 
 
 # --- float32 -----------------------------------------------------------------------------------
@@ -234,7 +244,7 @@ def encode_result(result: CycleResult, heartbeat: int, word_order: WordOrder = "
         raise DeviceRequestInvalid(f"a cycle result needs {len(OFFSET_NAMES)} offset and {len(QUALITY_NAMES)} "
                                    f"quality values, got {len(result.offset)} and {len(result.quality)}")
     words = [uint16_word(result.error_code, ERROR_CODE), uint16_word(heartbeat, HEARTBEAT),
-             uint16_word(result.cycle_counter, CYCLE_COUNTER), uint16_word(result.job, ECHO_JOB),
+             cycle_counter_word(result.cycle_counter), uint16_word(result.job, ECHO_JOB),
              uint16_word(result.part_tag, ECHO_PART_TAG)]
     for first, values in ((OFFSET, result.offset), (QUALITY, result.quality)):
         for i, value in enumerate(values):

@@ -56,12 +56,14 @@ REQUEST_OFFSET = tuple(f"input_double_register_{k}" for k in range(24, 30))  # x
 INPUT_RECIPE = (REQUEST_SEQUENCE, REQUEST_COMMAND, REQUEST_POSE_NUMBER, *REQUEST_OFFSET)
 INPUT_RECIPE_TYPES = ("INT32",) * 3 + ("DOUBLE",) * 6
 # What the robot program answers in output registers, read through ur_rtde's RTDEReceiveInterface, whose
-# getOutputIntRegister() reads only 12-19 or (use_upper_range_registers) 36-43: we use the upper range, which
-# the RTDE guide leaves to external clients (0-23 belong to fieldbus adapters)
-ANSWER_REGISTERS = (36, 37, 38)
-ANSWER_ACK_SEQUENCE, ANSWER_IN_POSITION, ANSWER_PROGRAM_STATUS = (f"output_int_register_{k}" for k in ANSWER_REGISTERS)
+# getOutputIntRegister() reads only 12-19 or (use_upper_range_registers) 36-43: we use the upper range (24-47 are
+# RTDE's own; 0-23 belong to fieldbus adapters). 36 acknowledged number, 37 in position, 38 status, 39 the held
+# offset's number, 40 the grasp interlock (1: valid) (monoguide.drivers.robot_program.REPORT)
+ANSWER_REGISTERS = (36, 37, 38, 39, 40)
+ANSWER_ACK_SEQUENCE, ANSWER_IN_POSITION, ANSWER_PROGRAM_STATUS, ANSWER_HELD_SEQUENCE, ANSWER_OFFSET_VALID = (
+    f"output_int_register_{k}" for k in ANSWER_REGISTERS)
 OUTPUT_RECIPE = ("timestamp", "actual_TCP_pose", "robot_mode", "safety_mode", "runtime_state",
-                 ANSWER_ACK_SEQUENCE, ANSWER_IN_POSITION, ANSWER_PROGRAM_STATUS)
+                 *(f"output_int_register_{k}" for k in ANSWER_REGISTERS))
 
 
 @dataclass(frozen=True)

@@ -29,7 +29,6 @@ from monoguide.drivers.errors import (
     DeviceTimeout,
 )
 from monoguide.drivers.robot import (
-    COMMAND_NONE,
     COMMAND_OFFSET,
     HandshakeRobot,
     RobotIdentity,
@@ -209,13 +208,14 @@ class UrRobot(HandshakeRobot):
         elif now - self._last_timestamp[1] > self.stale_timeout_s:
             raise DeviceTimeout(f"{self.name}: no new data from the controller for "
                                 f"{now - self._last_timestamp[1]:.1f} s (controller stalled?)")
-        ack, in_position, program_status = (int(v) for v in answer["registers"])
+        ack, in_position, program_status, held, valid = (int(v) for v in answer["registers"])
         return RobotStatus(
             T_b_f=ur_pose_to_T(np.array(answer["pose"], dtype=float)),
             mode=ROBOT_MODES.get(int(answer["robot_mode"]), f"MODE_{answer['robot_mode']}"),
             safety=SAFETY_MODES.get(int(answer["safety_mode"]), f"SAFETY_{answer['safety_mode']}"),
             program_running=int(answer["runtime_state"]) == RUNTIME_PLAYING,
             in_position=in_position, ack_sequence=ack, program_status=program_status, timestamp_s=timestamp,
+            held_sequence=held, offset_valid=valid == 1,
         )
 
     def close(self) -> None:
@@ -229,10 +229,8 @@ class UrRobot(HandshakeRobot):
         self._last_timestamp = None
         self._inputs.close()
         version = self._inputs.open()
-        # sequence 0 clears the program's handshake; we continue after the last number it acknowledged, so
-        # an acknowledgement left from an earlier session is never taken for ours
-        self._inputs.send_request(rtde.RobotRequest(0, COMMAND_NONE, 0, (0.0,) * 6))
-        self._sequence = self._first_status().ack_sequence
+        # the handshake is synchronised (sequence 0) before the first request: HandshakeRobot._synchronise
+        self._connected(self._first_status())
         self._identity = RobotIdentity("Universal Robots", f"UR (RTDE, {'e-Series' if version[0] >= 5 else 'CB3'})",
                                        "", ".".join(str(v) for v in version), f"{self.host}:{self.port}")
         log.info("%s: connected, controller %s", self.name, self._identity.software)

@@ -6,4 +6,5 @@ cd "$(dirname "$0")/.."
 . scripts/venv.sh test
 .venv/bin/ruff check .
 .venv/bin/lint-imports
-exec .venv/bin/python -m pytest "$@"
+# two workers, each test file on one of them (a file's tests share its loopback addresses and fixtures)
+exec .venv/bin/python -m pytest -n 2 --dist loadfile "$@"

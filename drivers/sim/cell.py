@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from monoguide.drivers.atomic_file import write_atomic
 from monoguide.drivers.sim.target_renderer import base_calibration_poses
 from monoguide.solver.calibration.intrinsics import CirclePlate
 from monoguide.solver.calibration.target import TargetMarks, default_target_marks
@@ -246,10 +247,7 @@ class SimCell:
                 "translation_mm": list(s.deviation_translation_mm), "rotation_deg": list(s.deviation_rotation_deg),
             },
         }
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(json.dumps(data, indent=1))
-        os.replace(tmp, path)
-        return path
+        return write_atomic(path, json.dumps(data, indent=1))
 
     # --- SMRs for the laser tracker -------------------------------------------------------------
 
@@ -303,10 +301,7 @@ class SimCell:
             "nests": {k: [float(v) for v in p] for k, p in targets.items()},
             **({"flange": flange} if flange is not None else {}),
         }
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(json.dumps(data, indent=1))
-        os.replace(tmp, path)
-        return path
+        return write_atomic(path, json.dumps(data, indent=1))
 
     # --- private --------------------------------------------------------------------------------
 

@@ -15,6 +15,11 @@ heartbeat runs. What the service reports for each (``drivers/errors.py``, ``docs
 trigger-dropped-early ``PLC_TRIGGER_DROPPED`` (453, ERROR), heartbeat-stopped ``PLC_HEARTBEAT_LOST`` (452,
 FAULT), no-ack ``PLC_ACK_TIMEOUT`` (454, FAULT after ``[plc] ack_timeout_s``).
 
+With ``grasp_wait_s`` (``--grasp-wait S``: a simulated robot is in the cell) the line gives the robot
+the grasp go after each result it read with RESULT_OK and acknowledged: it prints ``GRASP {"part", "part_tag"}``
+(``monoguide sim-cell`` passes it to the robot controller) and waits up to S s for the robot's answer on standard
+input, ``grasped {json}``, before the next part; the part's record gets it as ``grasp`` (null: no go given).
+
 Run in its own process: ``python -m monoguide.drivers.sim.plc --host 127.0.0.x --port N``. It prints
 ``LISTEN plc HOST:PORT`` when it serves, then one JSON line per finished part; each line read from
 standard input is a fault command (one of :data:`FAULTS`). It serves until SIGTERM (exit status 0), also
@@ -57,6 +62,8 @@ from monoguide.drivers.plc_registers import (
 log = logging.getLogger(__name__)
 
 FAULTS = ("none", "trigger-dropped-early", "heartbeat-stopped", "no-ack")
+GRASP_GO = "GRASP"  # printed: the grasp go
+GRASP_ANSWER = "grasped"  # read: the robot's outcome
 READ_FC, WRITE_FC = 3, 16
 POLL_S = 0.01
 
@@ -112,6 +119,13 @@ class LinePlc:
     fault: str = "none"
     report: Callable[[dict[str, object]], None] = lambda record: None
     parts: int = 0
+    grasp_wait_s: float | None = None  # give the grasp go after a good result and wait this long for the answer
+    go: Callable[[dict[str, object]], None] = lambda part: None
+    _grasp_answers: asyncio.Queue[dict[str, object]] = field(default_factory=asyncio.Queue)
+
+    def grasped(self, outcome: dict[str, object]) -> None:
+        """The robot's answer to the go (what it printed, passed back by sim-cell)."""
+        self._grasp_answers.put_nowait(outcome)
 
     def command(self, fault: str) -> None:
         """Inject a fault (or ``none`` to clear it)."""
@@ -153,7 +167,9 @@ class LinePlc:
         record.update(_result_record(outputs))
         if self.fault == "no-ack":
             return self._finish(record, "not acknowledged")
-        return self._finish(record, "acknowledged" if await self._acknowledge() else "DONE not cleared")
+        acknowledged = await self._acknowledge()
+        record["grasp"] = await self._grasp(record) if acknowledged and record.get("result_ok") else None
+        return self._finish(record, "acknowledged" if acknowledged else "DONE not cleared")
 
     async def heartbeat(self) -> None:
         """Change the PLC heartbeat every period (unless stopped by command); answer FAULT with FAULT_RESET."""
@@ -185,6 +201,21 @@ class LinePlc:
         await self._set(0)
         return cleared
 
+    async def _grasp(self, record: dict[str, object]) -> dict[str, object] | None:
+        """The grasp go for the part just done, and the robot's answer (its program runs the grasp only with a valid
+        offset); None when the line gives no go (no simulated robot)."""
+        if self.grasp_wait_s is None:
+            return None
+        while not self._grasp_answers.empty():  # an answer from a go that timed out earlier
+            self._grasp_answers.get_nowait()
+        self.go({"part": record["part"], "part_tag": record["part_tag"]})
+        try:
+            return await asyncio.wait_for(self._grasp_answers.get(), self.grasp_wait_s)
+        except TimeoutError:
+            log.warning("simulated PLC: no answer to the grasp go of part %s within %g s", record["part"],
+                        self.grasp_wait_s)
+            return {"outcome": "no answer"}
+
     async def _wait_status(self, done: Callable[[Status], bool]) -> bool:
         deadline = asyncio.get_running_loop().time() + self.timing.wait_timeout_s
         while asyncio.get_running_loop().time() < deadline:
@@ -213,7 +244,8 @@ async def _serve(args: argparse.Namespace) -> None:
     await server.start()
     loop = asyncio.get_running_loop()
     line = LinePlc(server, LineTiming(args.part_interval, args.heartbeat_period), args.word_order, args.job,
-                   args.fault, lambda record: print(json.dumps(record), flush=True))
+                   args.fault, lambda record: print(json.dumps(record), flush=True), grasp_wait_s=args.grasp_wait,
+                   go=lambda part: print(f"{GRASP_GO} {json.dumps(part)}", flush=True))
 
     def read_commands() -> None:  # stdin in a thread: one fault command per line; end of input is fine
         for text in sys.stdin:
@@ -238,6 +270,12 @@ async def _serve(args: argparse.Namespace) -> None:
 
 
 def _command(line: LinePlc, text: str) -> None:
+    if text.startswith(GRASP_ANSWER + " "):
+        try:
+            line.grasped(json.loads(text[len(GRASP_ANSWER) + 1:]))
+        except ValueError as exc:
+            print(f"error: {GRASP_ANSWER}: not JSON: {exc}", file=sys.stderr, flush=True)
+        return
     try:
         line.command(text)
     except ValueError as exc:
@@ -256,6 +294,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--part-interval", type=float, default=0.2)
     parser.add_argument("--heartbeat-period", type=float, default=0.5)
     parser.add_argument("--parts", type=int, default=None, help="stop after this many parts (default: run on)")
+    parser.add_argument("--grasp-wait", type=float, default=None,
+                        help="give the grasp go after each good result, wait this long for the robot's answer")
     parser.add_argument("--no-play", dest="play", action="store_false",
                         help="serve the registers and beat the heartbeat, play no parts")
     args = parser.parse_args(argv)

@@ -1,101 +1,124 @@
 """The simulated robot program, shared by the simulated UR and KUKA controllers (protocol-free).
 
-It plays the part of the robot program of ``config/ur/`` and ``config/kuka/``: on a request to go to
-measuring pose number k it moves there in ``move_time_s`` and stops at the taught flange pose plus the
-cell's repeatability noise, then reports k in position and acknowledges the request's sequence number
-(numbers 101.. are the base-calibration poses, the spec's ``T_b_f_calibration``, alike); on
-an offset ``D_b`` it applies it to the taught grasp pose (``pose_trans(D_b, grasp)``), acknowledges, and
-scores it: the **grasp error**, that grasp pose against the ideal one ``T_b_w · T_b_w0⁻¹ · T_b_g0`` which
-fits the true part exactly, logged with the part and the sequence number.
+It plays the state machine of ``config/ur/`` and ``config/kuka/`` as :mod:`monoguide.drivers.robot_program`
+tables it (every answer, validity flag and held sequence goes through :meth:`SimRobotProgram._rule`, by the
+rule's name): in its loop, when idle, it answers the cell's grasp go first, then the request registers (UR: as
+they are now, retained across a program restart) or every message in its buffer (KUKA: oldest first). On a request
+to go to pose number k it moves there in ``move_time_s`` and stops at the taught flange pose plus the cell's
+repeatability noise, then reports k in position and acknowledges (101.. are the base-calibration poses, the
+spec's ``T_b_f_calibration``); an offset ``D_b`` within its limits is stored and acknowledged and scored: the
+**grasp error**, ``pose_trans(D_b, grasp)`` against the ideal grasp pose ``T_b_w · T_b_w0⁻¹ · T_b_g0`` that
+fits the true part exactly. On the go, the grasp runs with the held offset when it is valid (scored again, on
+the part in the cell now) and is refused when it is not; both are logged (``grasps``).
 
 The truth comes from the robot spec file that :meth:`SimCell.write_robot_spec` writes (re-read when it
 changes: a new part); what the robot did goes to a truth file (:func:`read_truth`) that the in-process
-simulated camera follows (:meth:`SimCell.set_actual_flange_pose`) and tests score against.
+simulated camera follows (:meth:`SimCell.set_actual_flange_pose`) and tests score against: its stops (true:
+``T_b_f``, ``stops``; as reported: ``T_b_f_reported``, ``stops_reported``, which see only the share
+``reported_repeatability_fraction`` of each stop's deviation), the offsets it took, its grasps, and at every
+moment what it holds (``held_sequence``, ``offset_valid``).
 
-What the controller reports is not all of the truth: its flange pose (``T_b_f_reported``, on the wire) sees
-only the share ``reported_repeatability_fraction`` of each stop's deviation from the taught pose (the spec's
-key; 1 when absent: the report is the true stop), as a real robot's encoders miss backlash, flex and heat. The
-truth file keeps both: ``T_b_f`` and ``stops`` (true: where the camera stands), ``T_b_f_reported`` and
-``stops_reported``.
+Faults (:data:`FAULT_MODES` and :data:`FAULT_ACTIONS`, at start ``--fault`` or at run time one per line on
+standard input; ``none`` clears a mode): modes, from the next request on: ``stall`` (the controller freezes:
+nothing answered, nothing sent), ``drop`` (it closes every connection), ``protective-stop`` (safety stop, no
+motion), ``never-reach`` (moves but never arrives; also a move under way), ``no-ack`` (offsets are neither taken
+nor acknowledged: the part keeps no offset); at once ``program-stopped`` (the program is not running; ``none``
+starts it again from the beginning, as Play after Stop). One-shot: ``restart`` (Stop/Play now: the program stops
+for ``RESTART_DOWN_S`` and starts again, its variables reset, the UR request registers as they were),
+``cut-after-offset MS [DOWN_S]`` (when the next offset request arrives, MS ms later every connection is closed and
+any new one closed at once for DOWN_S s, default 1; the program runs on and takes the offset on its own schedule,
+as after a cable pull). What the robot adapter reports for each (``drivers/errors.py``): stall ``DEVICE_TIMEOUT``
+(402), drop ``DEVICE_DISCONNECTED`` (403), protective-stop ``ROBOT_PROTECTIVE_STOP`` (422), never-reach
+``ROBOT_POSITION_TIMEOUT`` (423), no-ack ``ROBOT_ACK_TIMEOUT`` (424), program-stopped and restart
+``ROBOT_NOT_READY`` (421; KUKA's restart closes the channel: ``DEVICE_DISCONNECTED``).
 
-Failure modes (:data:`FAULT_MODES`), set at start (``--fault``) or at run time (``--commands``: one fault
-per line on standard input, ``none`` clears it; :meth:`SimRobotProgram.set_fault`), each applied from the
-next request on: ``stall`` (the controller freezes: nothing answered, nothing sent), ``drop`` (it closes
-every connection), ``protective-stop`` (safety stop, no motion), ``never-reach`` (moves but never arrives;
-also a move under way), ``no-ack`` (offsets are neither taken nor acknowledged: the part keeps no offset);
-and at once ``program-stopped`` (the robot program is not running). ``none`` ends a stall and a protective
-stop: the controller answers again and its safety is back to normal. What the robot adapter (and so the
-service, on the PLC) reports for each (``drivers/errors.py``): stall ``DEVICE_TIMEOUT`` (402), drop
-``DEVICE_DISCONNECTED`` (403), protective-stop ``ROBOT_PROTECTIVE_STOP`` (422), never-reach
-``ROBOT_POSITION_TIMEOUT`` (423), no-ack ``ROBOT_ACK_TIMEOUT`` (424), program-stopped ``ROBOT_NOT_READY``
-(421).
-
-Order of truth and wire: the move that arrives and the truth file that says so are one synchronous step
-of the program loop (:meth:`SimRobotProgram.tick` then :func:`write_truth`, no ``await`` between them), and
-the controllers send their state only from other tasks of the same event loop; so the truth file (stops,
-``in_position``, the part's ``T_cf_w``) is on disk before a client can see "in position" on the wire.
+Order of truth and wire: every step of the program and the truth file that says what it did are one synchronous
+call (:meth:`SimController.step <monoguide.drivers.sim.robot_serve.SimController.step>`, no ``await`` between
+them), and the controllers send their state only from other tasks of the same event loop; so the truth file
+(stops, ``in_position``, the offset held, the part's ``T_cf_w``) is on disk before a client can see it on the wire.
 """
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
 import dataclasses
 import json
 import logging
 import math
 import os
-import signal
-import sys
-import threading
-from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
 from monoguide.drivers.robot import (
     CALIBRATION_POSE_BASE,
+    COMMAND_CLEAR,
     COMMAND_GOTO,
     COMMAND_NONE,
     COMMAND_OFFSET,
-    PROGRAM_BAD_POSE,
     PROGRAM_BUSY,
     PROGRAM_OK,
-    PROGRAM_UNKNOWN_COMMAND,
+    PROGRAM_SYNCHRONISED,
 )
-from monoguide.drivers.sim.cell import ROBOT_SPEC_FORMAT, SimCell
+from monoguide.drivers.robot_program import RULE
 from monoguide.drivers.sim.part_supply import PartSupply
-from monoguide.solver.frames import (
-    compose,
-    invert,
-    make_T,
-    matrix_to_rotvec,
-    pose_difference,
-    rotvec_to_matrix,
+from monoguide.drivers.sim.robot_truth import (  # re-exported: the simulated camera and tests import them from here
+    TRUTH_FORMAT,
+    RobotSpec,
+    file_mtime,
+    follow_truth,
+    grasp_error,
+    load_robot_spec,
+    offset_size,
+    read_truth,
+    write_truth,
 )
+from monoguide.solver.frames import compose, invert, make_T, matrix_to_rotvec, rotvec_to_matrix
+
+__all__ = ["FAULT_ACTIONS", "FAULT_MODES", "TRUTH_FORMAT", "AppliedOffset", "FaultCommand", "Grasp", "Request",
+           "RequestSource", "RobotSpec", "SimRobotProgram", "file_mtime", "follow_truth", "grasp_error",
+           "load_robot_spec", "offset_size", "parse_fault", "read_truth", "write_truth"]
 
 log = logging.getLogger("monoguide.sim.robot")
 
-TRUTH_FORMAT = "monoguide.sim-robot-truth/1"
 FAULT_MODES = ("none", "stall", "drop", "protective-stop", "never-reach", "no-ack", "program-stopped")
+FAULT_ACTIONS = ("restart", "cut-after-offset")  # one-shot: they act once, and leave the mode in force as it was
 MAX_OFFSETS_KEPT = 200
+RESTART_DOWN_S = 0.3  # Stop ... Play: how long the program is not running
+CUT_DOWN_S = 1.0  # cut-after-offset: how long new connections are closed at once (default)
+MAX_CUT_MS = 60_000.0
+# the program's own limits for an offset, as the templates have them: the grasp point's shift and the rotation
+MAX_OFFSET_SHIFT_MM = 100.0
+MAX_OFFSET_TURN_DEG = 10.0
 
 
 @dataclass(frozen=True)
-class RobotSpec:
-    """What the simulated robot knows of the cell (all in its base frame, mm)."""
+class Request:
+    """One request as the program read it; ``D_b`` None: a field could not be read (KUKA: a RET not ok)."""
 
-    part: int
-    seed: int
-    repeatability_mm: float
-    repeatability_deg: float
-    T_b_f_taught: tuple[np.ndarray, ...]
-    T_b_w0: np.ndarray
-    T_b_w: np.ndarray
-    T_b_g0: np.ndarray
-    T_b_f_calibration: tuple[np.ndarray, ...] = ()  # base-calibration poses 1..N: wire pose numbers 101..100+N
-    reported_fraction: float = 1.0  # share of each stop's deviation the controller's reported pose sees
+    sequence: int
+    command: int
+    pose_number: int
+    D_b: np.ndarray | None
+    received: tuple[float, ...]  # the offset as it arrived, in the wire's units
+
+
+class RequestSource(Protocol):
+    """Where the program reads its requests: UR the input registers (``level``: the same request until the daemon
+    writes another), KUKA the EKI buffer (each message once)."""
+
+    level: bool
+
+    def next_request(self) -> Request | None: ...
+
+
+@dataclass(frozen=True)
+class FaultCommand:
+    """A fault command line, checked: its name and, for ``cut-after-offset``, MS and DOWN_S."""
+
+    name: str
+    after_ms: float = 0.0
+    down_s: float = CUT_DOWN_S
 
 
 @dataclass
@@ -109,6 +132,22 @@ class AppliedOffset:
 
 
 @dataclass
+class Grasp:
+    """A grasp the go asked for: run with the held offset, or refused by the interlock (``reason``)."""
+
+    part: int
+    held_sequence: int
+    outcome: str  # "ran" | "refused"
+    reason: str | None  # refused: "stale offset" (one is held, not valid) | "no offset"
+    grasp_error_mm: float | None  # ran: the held offset on the part in the cell now; refused: what it would have been
+    grasp_error_deg: float | None
+    at_s: float
+
+    def record(self) -> dict[str, object]:
+        return dataclasses.asdict(self)
+
+
+@dataclass
 class SimRobotProgram:
     """The robot program's state and its answers. Time is passed in (``now``, seconds), never read."""
 
@@ -116,34 +155,117 @@ class SimRobotProgram:
     rng: np.random.Generator
     move_time_s: float = 0.5
     fault: str = "none"
-    T_b_f: np.ndarray = field(default_factory=lambda: np.eye(4))
-    in_position: int = 0
-    ack_sequence: int = 0
-    program_status: int = PROGRAM_OK
-    safety: str = "NORMAL"
-    last_sequence: int = 0
-    requests: int = 0
-    offsets: list[AppliedOffset] = field(default_factory=list)
-    stops: dict[int, np.ndarray] = field(default_factory=dict)
     supply: PartSupply | None = None  # presents a new part at each request of measuring pose 1
-    _move: tuple[float, np.ndarray, np.ndarray, int, int] | None = None  # start, from, to, number, seq
+    grasp_time_s: float = 0.1
+    T_b_f: np.ndarray = field(default_factory=lambda: np.eye(4))
+    safety: str = "NORMAL"
+    state: str = "IDLE"
+    program_running: bool = True
+    # the program variables (robot_program.VARIABLES)
+    last_seq: int = 0
+    ack_sequence: int = 0
+    in_position: int = 0
+    program_status: int = PROGRAM_OK
+    held_sequence: int = 0
+    offset_valid: bool = False
+    offset: np.ndarray = field(default_factory=lambda: np.eye(4))  # the held offset (identity when not valid)
+    requests: int = 0  # new numbered requests taken
+    offsets: list[AppliedOffset] = field(default_factory=list)
+    grasps: list[Grasp] = field(default_factory=list)
+    stops: dict[int, np.ndarray] = field(default_factory=dict)
     stops_reported: dict[int, np.ndarray] = field(default_factory=dict)  # what the controller reported there
+    commands_applied: int = 0
+    starts: int = 0
+    _move: tuple[float, np.ndarray, np.ndarray, int, int] | None = None  # start, from, to, number, seq
+    _grasp_end: float | None = None
+    _go_pending: int = 0
+    _stopped_until: float | None = None  # a restart under way: the program starts again then
+    _cut: FaultCommand | None = None
+    _events: list[dict[str, object]] = field(default_factory=list)
     _unseen: np.ndarray = field(default_factory=lambda: np.eye(4))  # reported = true · _unseen (this stop's)
 
     def __post_init__(self) -> None:
-        if self.fault not in FAULT_MODES:
-            raise ValueError(f"fault must be one of {FAULT_MODES}, got {self.fault!r}")
-        self.T_b_f = self._stop_at(1)  # the robot starts at measuring pose S1
-        self.in_position = 1
+        self.T_b_f = self._stop_at(1)  # the robot stands at measuring pose S1 when the controller starts
+        command = parse_fault(self.fault)
+        self.fault = "none"
+        self._start(None)
+        if command.name != "none":
+            self.command(command, 0.0)
+        self.commands_applied = 0
 
-    def set_fault(self, fault: str) -> None:
-        """Change the failure mode at run time (``none``: clear it); a protective stop ends with its mode."""
-        if fault not in FAULT_MODES:
-            raise ValueError(f"fault {fault!r}: expected one of {', '.join(FAULT_MODES)}")
-        if fault != "protective-stop":
+    # --- the loop ---------------------------------------------------------------------------------
+
+    def step(self, now: float, source: RequestSource) -> bool:
+        """One pass of the program's loop at ``now``: a restart's start, the motion or grasp under way, then (idle)
+        the go and the requests. Returns whether anything the program holds or reports changed."""
+        changed = False
+        if self._stopped_until is not None and now >= self._stopped_until:
+            self._start(source)
+            changed = True
+        if not self.program_running or self.safety != "NORMAL":
+            return changed
+        if self._advance(now):
+            return True  # a move or grasp just ended and was answered: the loop's next pass reads the inputs
+        while self.state == "IDLE":
+            if self._go_pending:
+                self._go_pending -= 1
+                self._go(now)
+                changed = True
+                continue
+            request = source.next_request()
+            if request is None:
+                break
+            changed |= self._take(request, now)
+            if source.level:
+                break  # UR: the registers once a cycle
+        return changed
+
+    def go(self) -> None:
+        """The cell's grasp go rises (the simulated PLC's, forwarded by sim-cell). A program that is not running or
+        stands in a safety stop does not see it; the line drops its go when the answer does not come."""
+        if not self.program_running or self.safety != "NORMAL":
+            log.info("grasp go not seen: the program is %s", "stopped" if not self.program_running else self.safety)
+            return
+        self._go_pending += 1
+
+    def take_events(self) -> list[dict[str, object]]:
+        """What happened since the last call that the controller passes on (grasps; the program stopped/started)."""
+        events, self._events = self._events, []
+        return events
+
+    def take_cut(self) -> FaultCommand | None:
+        """An offset request has arrived at the controller: the armed cut-after-offset, once."""
+        cut, self._cut = self._cut, None
+        return cut
+
+    @property
+    def faulted(self) -> bool:
+        """A fault mode is in effect (it acts on every new request)."""
+        return self.fault != "none"
+
+    # --- faults -------------------------------------------------------------------------------------
+
+    def command(self, fault: FaultCommand, now: float) -> None:
+        """Apply a fault command (:func:`parse_fault`): a mode from the next request on (``program-stopped`` at
+        once), an action now."""
+        self.commands_applied += 1
+        log.info("fault %s (was %s)", fault.name, self.fault)
+        if fault.name == "restart":
+            self._stop(now + RESTART_DOWN_S)
+            return
+        if fault.name == "cut-after-offset":
+            self._cut = fault
+            return
+        was = self.fault
+        self.fault = fault.name
+        if fault.name != "protective-stop":
             self.safety = "NORMAL"
-        log.info("fault %s (was %s)", fault, self.fault)
-        self.fault = fault
+        if fault.name == "program-stopped":
+            self._stop(None)
+        elif was == "program-stopped" and not self.program_running and self._stopped_until is None:
+            self._stopped_until = now  # Play: the program starts again from the beginning at its next step
+
+    # --- the truth ----------------------------------------------------------------------------------
 
     @property
     def T_b_f_reported(self) -> np.ndarray:
@@ -151,78 +273,28 @@ class SimRobotProgram:
         deviation from the taught pose that the encoders do not see (``reported_fraction``)."""
         return compose(self.T_b_f, self._unseen)
 
-    @property
-    def program_running(self) -> bool:
-        return self.fault != "program-stopped"
-
-    @property
-    def faulted(self) -> bool:
-        """A request has arrived and the configured fault is now in effect."""
-        return self.fault != "none" and self.requests > 0
-
-    def handle(self, sequence: int, command: int, pose_number: int, D_b: np.ndarray | None,
-               received: tuple[float, ...], now: float) -> bool:
-        """React to the request registers (the program polls them): a new ``sequence`` with a command is a
-        new request; the same one again is ignored. Returns whether it was new."""
-        if sequence == 0:
-            self.last_sequence = 0  # the daemon (re)connected: the next number is new whatever it is
-            return False
-        if command == COMMAND_NONE or sequence == self.last_sequence:
-            return False
-        self.last_sequence = sequence
-        self.requests += 1
-        log.info("request %d: command %d pose %d offset %s", sequence, command, pose_number,
-                 " ".join(f"{v:.9g}" for v in received))
-        if self.fault == "protective-stop":
-            self.safety = "PROTECTIVE_STOP"
-            self._move = None
-            return True
-        if command == COMMAND_GOTO:
-            if not (1 <= pose_number <= len(self.spec.T_b_f_taught)
-                    or CALIBRATION_POSE_BASE < pose_number <= CALIBRATION_POSE_BASE + len(self.spec.T_b_f_calibration)):
-                self._answer(sequence, PROGRAM_BAD_POSE)
-                return True
-            if pose_number == 1 and self.supply is not None:  # a cycle starts: the next part arrives
-                self.spec = dataclasses.replace(self.spec, T_b_w=self.supply.arrive(), part=self.supply.part)
-            self.in_position = 0
-            self.program_status = PROGRAM_BUSY
-            self._move = (now, self.T_b_f.copy(), self._stop_at(pose_number), pose_number, sequence)
-        elif command == COMMAND_OFFSET and D_b is not None:
-            self._apply_offset(sequence, D_b, received)
-        else:
-            self._answer(sequence, PROGRAM_UNKNOWN_COMMAND)
-        return True
-
-    def tick(self, now: float) -> None:
-        """Advance the motion to time ``now``."""
-        if self._move is None:
-            return
-        start, T_from, T_to, number, sequence = self._move
-        s = 1.0 if self.move_time_s <= 0 else min(1.0, (now - start) / self.move_time_s)
-        if self.fault == "never-reach":
-            s = min(s, 0.5)
-        self.T_b_f = _interpolate(T_from, T_to, s)
-        if s >= 1.0:
-            self._move = None
-            self.in_position = number
-            self.stops[number] = T_to.copy()
-            self.stops_reported[number] = compose(T_to, self._unseen)
-            self._answer(sequence, PROGRAM_OK)
-            log.info("in position at S%d (request %d)", number, sequence)
-
     def reload(self, spec: RobotSpec) -> None:
         if spec.part != self.spec.part:
             log.info("new part %d in the cell", spec.part)
         self.spec = spec
 
     def truth(self) -> dict[str, object]:
-        """What the robot did, for the truth file."""
+        """What the robot did and holds, for the truth file."""
         return {
             "format": TRUTH_FORMAT,
             "pid": os.getpid(),
             "part": self.spec.part,
             "in_position": self.in_position,
             "fault": self.fault,
+            "commands_applied": self.commands_applied,
+            "program_running": self.program_running,
+            "starts": self.starts,
+            "state": self.state,
+            "last_seq": self.last_seq,
+            "ack_sequence": self.ack_sequence,
+            "program_status": self.program_status,
+            "held_sequence": self.held_sequence,
+            "offset_valid": self.offset_valid,
             "T_b_f": self.T_b_f.tolist(),
             **({"T_cf_w": self.supply.T_cf_w.tolist()} if self.supply is not None else {}),
             "stops": {str(k): T.tolist() for k, T in self.stops.items()},
@@ -233,9 +305,181 @@ class SimRobotProgram:
                  "grasp_error_mm": o.grasp_error_mm, "grasp_error_deg": o.grasp_error_deg}
                 for o in self.offsets[-MAX_OFFSETS_KEPT:]
             ],
+            "grasps": [g.record() for g in self.grasps[-MAX_OFFSETS_KEPT:]],
         }
 
-    # --- private --------------------------------------------------------------------------------
+    # --- private: the rules -----------------------------------------------------------------------------
+
+    def _rule(self, name: str, sequence: int | None = None) -> None:
+        """Apply rule ``name`` of the table: its answer (with ``sequence``), the validity flag, the held sequence."""
+        rule = RULE[name]
+        if rule.valid == "set":
+            self.offset_valid = True
+        elif rule.valid == "clear":
+            self.offset_valid = False
+            self.offset = np.eye(4)  # the grasp base holds no offset at rest (KUKA: BASE_DATA reset to the taught)
+        if rule.held == "sequence":
+            assert sequence is not None
+            self.held_sequence = sequence
+        elif rule.held == "zero":
+            self.held_sequence = 0
+        if rule.status is not None:
+            assert sequence is not None
+            self.program_status = rule.status  # status first, the number last: the daemon reads it with the number
+            if rule.status != PROGRAM_BUSY:  # busy: the number stays the last one answered
+                self.ack_sequence = sequence
+            self._events.append({"event": "answer", "ack_sequence": self.ack_sequence, "program_status":
+                                 self.program_status, "in_position": self.in_position,
+                                 "held_sequence": self.held_sequence, "offset_valid": self.offset_valid})
+
+    def _start(self, source: RequestSource | None) -> None:
+        """The program starts: every variable as the table has it at start; UR's last_seq is the request already in
+        the registers (not replayed)."""
+        self._stopped_until = None
+        self.program_running = True
+        self.state = "IDLE"
+        self._move = self._grasp_end = None
+        self._go_pending = 0
+        self.in_position = 0
+        self.program_status = PROGRAM_OK
+        self.ack_sequence = 0
+        self.last_seq = 0
+        if source is not None and source.level and (request := source.next_request()) is not None:
+            self.last_seq = request.sequence
+        self._rule("start")
+        self.starts += 1
+        self._events.append({"event": "started", "last_seq": self.last_seq})
+        log.info("program starts (last_seq %d)", self.last_seq)
+
+    def _stop(self, restart_at: float | None) -> None:
+        self.program_running = False
+        self._stopped_until = restart_at
+        self._move = self._grasp_end = None
+        self.state = "IDLE"
+        self._events.append({"event": "stopped"})
+        log.info("program stops%s", "" if restart_at is None else f" (starts again at {restart_at:.3f} s)")
+
+    def _take(self, request: Request, now: float) -> bool:
+        seq = request.sequence
+        if seq == 0:
+            if (self.last_seq, self.ack_sequence, self.program_status, self.offset_valid) == (
+                    0, 0, PROGRAM_SYNCHRONISED, False):
+                return False  # UR: the register still 0, already answered
+            self.last_seq = 0
+            self._rule("reset", 0)
+            return True
+        if seq == self.last_seq:
+            return False  # rule "repeat"
+        self.last_seq = seq
+        self.requests += 1
+        log.info("request %d: command %d pose %d offset %s", seq, request.command, request.pose_number,
+                 " ".join(f"{v:.9g}" for v in request.received))
+        if self.fault == "protective-stop":
+            self.safety = "PROTECTIVE_STOP"  # the program pauses; the request is never executed
+            return True
+        if request.D_b is None:
+            self._rule("unreadable", seq)
+        elif request.command == COMMAND_NONE:
+            self._rule("sync", seq)
+        elif request.command == COMMAND_GOTO:
+            self._goto(seq, request.pose_number, now)
+        elif request.command == COMMAND_OFFSET:
+            self._store_offset(seq, request.D_b, request.received)
+        elif request.command == COMMAND_CLEAR:
+            self._rule("clear", seq)
+        else:
+            self._rule("unknown", seq)
+        return True
+
+    def _goto(self, seq: int, number: int, now: float) -> None:
+        if not (1 <= number <= len(self.spec.T_b_f_taught)
+                or CALIBRATION_POSE_BASE < number <= CALIBRATION_POSE_BASE + len(self.spec.T_b_f_calibration)):
+            self._rule("bad-pose", seq)
+            return
+        if number == 1 and self.supply is not None:  # a cycle starts: the next part arrives
+            self.spec = dataclasses.replace(self.spec, T_b_w=self.supply.arrive(), part=self.supply.part)
+        self.in_position = 0
+        self._rule("goto", seq)
+        self.state = "MOVING"
+        self._move = (now, self.T_b_f.copy(), self._stop_at(number), number, seq)
+
+    def _store_offset(self, seq: int, D_b: np.ndarray, received: tuple[float, ...]) -> None:
+        if self.fault == "no-ack":  # the program never takes it: nothing stored, nothing acknowledged
+            log.info("offset %d not taken (fault no-ack)", seq)
+            return
+        shift_mm, turn_deg = offset_size(D_b, self.spec.T_b_g0)
+        if shift_mm > MAX_OFFSET_SHIFT_MM or turn_deg > MAX_OFFSET_TURN_DEG:
+            log.info("offset %d refused: %.2f mm / %.3f deg at the grasp point (limits %g mm / %g deg)", seq,
+                     shift_mm, turn_deg, MAX_OFFSET_SHIFT_MM, MAX_OFFSET_TURN_DEG)
+            self._rule("offset-refused", seq)
+            return
+        error_mm, error_deg = grasp_error(D_b, self.spec.T_b_g0, self.spec.T_b_w, self.spec.T_b_w0)
+        self.offsets.append(AppliedOffset(seq, self.spec.part, received, np.array(D_b, dtype=float), error_mm,
+                                          error_deg))
+        if self.supply is not None:
+            self.supply.offset_applied(self.spec.part, D_b, error_mm, error_deg)
+        log.info("offset %d for part %d: grasp error %.4f mm %.5f deg", seq, self.spec.part, error_mm, error_deg)
+        self._rule("offset", seq)
+        self.offset = np.array(D_b, dtype=float)
+
+    def _go(self, now: float) -> None:
+        s = self.spec
+        D_b = self.offset if self.offset_valid else self._held_D_b()
+        error = grasp_error(D_b, s.T_b_g0, s.T_b_w, s.T_b_w0) if self.offset_valid or self.held_sequence \
+            else (None, None)
+        if self.offset_valid:
+            grasp = Grasp(s.part, self.held_sequence, "ran", None, *error, now)
+            self.state = "GRASPING"  # rule "grasp": the flag clears once the grasp has run (_advance)
+            self._grasp_end = now + self.grasp_time_s
+        else:
+            grasp = Grasp(s.part, self.held_sequence, "refused", "stale offset" if self.held_sequence else "no offset",
+                          *error, now)
+            self._rule("grasp-refused")
+            self._grasped(grasp)
+        self.grasps.append(grasp)
+        log.info("grasp of part %d %s (held offset %d%s)", s.part, grasp.outcome, grasp.held_sequence,
+                 f", {grasp.reason}" if grasp.reason else "")
+
+    def _grasped(self, grasp: Grasp) -> None:
+        """A grasp has run or was refused: an event for the controller, a line in the part supply's truth log."""
+        self._events.append({"event": "grasp", **grasp.record()})
+        if self.supply is not None and self.supply.log_path is not None:
+            with self.supply.log_path.open("a") as f:
+                f.write(json.dumps({"grasp": grasp.record()}) + "\n")
+
+    def _held_D_b(self) -> np.ndarray:
+        """The offset the program last took (what a grasp without the interlock would use), identity if none."""
+        held = [o for o in self.offsets if o.sequence == self.held_sequence]
+        return held[-1].D_b if held else np.eye(4)
+
+    def _advance(self, now: float) -> bool:
+        """The motion (or grasp) under way, to time ``now``; True when it ended."""
+        if self.state == "GRASPING":
+            assert self._grasp_end is not None
+            if now < self._grasp_end:
+                return False
+            self._grasp_end = None
+            self.state = "IDLE"
+            self._rule("grasp")
+            self._grasped(self.grasps[-1])
+            return True
+        if self._move is None:
+            return False
+        start, T_from, T_to, number, sequence = self._move
+        s = 1.0 if self.move_time_s <= 0 else min(1.0, (now - start) / self.move_time_s)
+        if self.fault == "never-reach":
+            s = min(s, 0.5)
+        self.T_b_f = _interpolate(T_from, T_to, s)
+        if s < 1.0:
+            return False
+        self._move = None
+        self.state = "IDLE"
+        self.in_position = number
+        self.stops[number] = T_to.copy()
+        self.stops_reported[number] = compose(T_to, self._unseen)
+        self._rule("arrived", sequence)
+        log.info("in position at S%d (request %d)", number, sequence)
+        return True
 
     def _stop_at(self, number: int) -> np.ndarray:
         s = self.spec
@@ -249,147 +493,29 @@ class SimRobotProgram:
             return compose(s.T_b_f_calibration[number - CALIBRATION_POSE_BASE - 1], noise)
         return compose(s.T_b_f_taught[number - 1], noise)
 
-    def _apply_offset(self, sequence: int, D_b: np.ndarray, received: tuple[float, ...]) -> None:
-        if self.fault == "no-ack":  # the program never takes it: nothing applied, nothing acknowledged
-            log.info("offset %d not taken (fault no-ack)", sequence)
-            return
-        error_mm, error_deg = grasp_error(D_b, self.spec.T_b_g0, self.spec.T_b_w, self.spec.T_b_w0)
-        self.offsets.append(AppliedOffset(sequence, self.spec.part, received, np.array(D_b, dtype=float),
-                                          error_mm, error_deg))
-        if self.supply is not None:
-            self.supply.offset_applied(self.spec.part, D_b, error_mm, error_deg)
-        log.info("offset %d for part %d: grasp error %.4f mm %.5f deg", sequence, self.spec.part, error_mm,
-                 error_deg)
-        self._answer(sequence, PROGRAM_OK)
 
-    def _answer(self, sequence: int, status: int) -> None:
-        self.program_status = status
-        self.ack_sequence = sequence
+# --- functions ------------------------------------------------------------------------------------
 
 
-async def run_program(program: SimRobotProgram, spec_path: Path, truth_path: Path, now: Callable[[], float],
-                      stalled: Callable[[], bool], stop: asyncio.Event, period_s: float = 0.02) -> None:
-    """The program's loop in a simulated controller: re-read the spec when it changes (a new part), move,
-    write the truth file; nothing moves while the controller is stalled."""
-    spec_mtime = file_mtime(spec_path)
-    while not stop.is_set():
-        if (mtime := file_mtime(spec_path)) != spec_mtime:
-            spec_mtime = mtime
-            try:
-                program.reload(load_robot_spec(spec_path))
-            except (OSError, ValueError, KeyError) as exc:
-                log.warning("keeping the old spec, cannot re-read %s: %s", spec_path, exc)
-        if not stalled():  # one synchronous step: the truth is on disk before any task sends the new state
-            program.tick(now())
-            write_truth(truth_path, program.truth())
-        with contextlib.suppress(asyncio.TimeoutError):
-            await asyncio.wait_for(stop.wait(), period_s)
-    if program.supply is not None:  # the controller stops: the part in the cell leaves
-        program.supply.close()
-
-
-async def serve_controller(client_handler: Callable[..., object], host: str, port: int,
-                           program: Callable[[asyncio.Event], object], drop_all: Callable[[], None],
-                           command: Callable[[str], None] | None = None) -> int:
-    """Listen on ``host:port``, print ``LISTEN robot host:port``, run the program loop, until SIGTERM/SIGINT
-    or until the parent process is gone; then close every connection. ``command``: called in the loop with
-    each line of standard input (fault commands); the end of the input is fine."""
-    # noted before LISTEN is printed: the parent may act on that line and die at once (a test killing a
-    # sim-cell), and a parent noted after its death would be init's pid, never gone: an orphan for good
-    parent = os.getppid()
-    stop = asyncio.Event()
-    loop = asyncio.get_running_loop()
-    for s in (signal.SIGTERM, signal.SIGINT):
-        loop.add_signal_handler(s, stop.set)
-    server = await asyncio.start_server(client_handler, host, port, reuse_address=True)  # type: ignore[arg-type]
-    print(f"LISTEN robot {host}:{port}", flush=True)
-    task = loop.create_task(program(stop))  # type: ignore[arg-type]
-    if command is not None:
-        threading.Thread(target=_read_commands, args=(loop, command), daemon=True).start()
-    while not stop.is_set() and os.getppid() == parent:
-        with contextlib.suppress(asyncio.TimeoutError):
-            await asyncio.wait_for(stop.wait(), 0.2)
-    stop.set()
-    server.close()
-    drop_all()
-    await task
-    return 0
-
-
-def _read_commands(loop: asyncio.AbstractEventLoop, command: Callable[[str], None]) -> None:
-    """Standard input, one command a line, each handed to the event loop (a thread: reading blocks)."""
-    for text in sys.stdin:
-        if text.strip():
-            loop.call_soon_threadsafe(command, text.strip())
-
-
-def apply_command(program: SimRobotProgram, truth_path: Path, text: str) -> bool:
-    """Apply one fault command line (a bad one is said on stderr, ``error: ...``, and changes nothing) and write
-    the fault in force into the truth file at once, even while stalled (a test waits for it there). True when
-    the controller is to answer again (the fault in force is not a stall)."""
+def parse_fault(text: str) -> FaultCommand:
+    """A fault command line -> :class:`FaultCommand`; ValueError naming what is wrong."""
+    name, *args = text.split()
+    if name not in FAULT_MODES + FAULT_ACTIONS:
+        raise ValueError(f"fault {name!r}: expected one of {', '.join(FAULT_MODES + FAULT_ACTIONS)}")
+    if name != "cut-after-offset":
+        if args:
+            raise ValueError(f"fault {name} takes nothing more, got {' '.join(args)!r}")
+        return FaultCommand(name)
+    if not 1 <= len(args) <= 2:
+        raise ValueError(f"fault cut-after-offset takes MS [DOWN_S], got {' '.join(args) or 'nothing'}")
     try:
-        program.set_fault(text)
-        applied = True
+        after_ms, down_s = float(args[0]), float(args[1]) if len(args) == 2 else CUT_DOWN_S
     except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr, flush=True)
-        applied = False
-    write_truth(truth_path, program.truth())
-    return applied and program.fault != "stall"
-
-
-def grasp_error(D_b: np.ndarray, T_b_g0: np.ndarray, T_b_w: np.ndarray, T_b_w0: np.ndarray) -> tuple[float, float]:
-    """The grasp pose offset ``D_b`` makes of the taught one, ``D_b · T_b_g0`` (what ``pose_trans`` does),
-    against the ideal one ``T_b_w · T_b_w0⁻¹ · T_b_g0``: (distance mm at the TCP, angle deg)."""
-    angle_deg, distance_mm = pose_difference(compose(D_b, T_b_g0), compose(T_b_w, invert(T_b_w0), T_b_g0))
-    return distance_mm, angle_deg
-
-
-def load_robot_spec(path: Path) -> RobotSpec:
-    data = json.loads(Path(path).read_text())
-    if data.get("format") != ROBOT_SPEC_FORMAT:
-        raise ValueError(f"{path}: format must be {ROBOT_SPEC_FORMAT!r}, got {data.get('format')!r}")
-    m = {k: np.asarray(data[k], dtype=float) for k in ("T_b_w0", "T_b_w", "T_b_g0")}
-    return RobotSpec(int(data["part"]), int(data["seed"]), float(data["repeatability_mm"]),
-                     float(data["repeatability_deg"]),
-                     tuple(np.asarray(T, dtype=float) for T in data["T_b_f_taught"]), **m,
-                     T_b_f_calibration=tuple(np.asarray(T, dtype=float) for T in data.get("T_b_f_calibration", ())),
-                     reported_fraction=float(data.get("reported_repeatability_fraction", 1.0)))
-
-
-def write_truth(path: Path, truth: dict[str, object]) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(truth))
-    os.replace(tmp, path)
-
-
-def read_truth(path: Path) -> dict[str, object]:
-    """The truth file of a simulated controller (what it did); matrices as nested lists."""
-    data = json.loads(Path(path).read_text())
-    if data.get("format") != TRUTH_FORMAT:
-        raise ValueError(f"{path}: format must be {TRUTH_FORMAT!r}, got {data.get('format')!r}")
-    return data
-
-
-def follow_truth(cell: SimCell, path: Path) -> int:
-    """Let an in-process :class:`SimCell` (the simulated camera's) stand where the simulated controller's robot
-    stands: every stop it made, then its current measuring pose; and hold the part the controller's part
-    supply presents (``T_cf_w``), when it has one. Returns that pose number (0: moving)."""
-    truth = read_truth(path)
-    if truth.get("T_cf_w") is not None:
-        cell.set_part_pose(np.asarray(truth["T_cf_w"], dtype=float))
-    stops = {int(k): np.asarray(T, dtype=float) for k, T in truth["stops"].items()}  # type: ignore[union-attr]
-    current = int(truth["in_position"])  # type: ignore[call-overload]
-    for number in sorted(stops, key=lambda k: k == current):  # the current stop last: it sets current_pose
-        if 1 <= number <= cell.n_measuring_poses:  # not the base-calibration poses (101..): no camera pose
-            cell.set_actual_flange_pose(number - 1, stops[number])
-    return current
-
-
-def file_mtime(path: Path) -> int:
-    try:
-        return path.stat().st_mtime_ns
-    except OSError:
-        return -1
+        raise ValueError(f"fault cut-after-offset {' '.join(args)}: MS and DOWN_S are numbers") from exc
+    if not (0 <= after_ms <= MAX_CUT_MS and 0 < down_s <= MAX_CUT_MS / 1000):
+        raise ValueError(f"fault cut-after-offset {' '.join(args)}: MS 0..{MAX_CUT_MS:g}, DOWN_S above 0 up to "
+                         f"{MAX_CUT_MS / 1000:g}")
+    return FaultCommand(name, after_ms, down_s)
 
 
 def _interpolate(T_from: np.ndarray, T_to: np.ndarray, s: float) -> np.ndarray:

@@ -2,12 +2,14 @@
 
 Run as ``python -m monoguide.drivers.sim.ur_controller --spec ROBOT.json --truth TRUTH.json --host
 127.0.0.50``. It prints ``LISTEN robot <host>:<port>`` on stdout and serves until SIGTERM/SIGINT or until its
-parent goes away; with ``--commands`` each line of standard input is a fault
-(``robot_motion.FAULT_MODES``). Like a real controller it answers the protocol and controller version, output recipes
-(``NOT_FOUND`` for variables it does not know) and input recipes (``IN_USE`` for registers another client
-holds), start and pause, and sends data packages at each recipe's frequency. The robot program's part —
-moving, in position, applying an offset, the grasp error — is :class:`SimRobotProgram`, fed from the
-input registers as URScript would poll them (``config/ur/monoguide.script``).
+parent goes away; with ``--commands`` each line of standard input is a command (a fault,
+``robot_motion.FAULT_MODES``, or ``grasp``: the cell's go). Like a real controller it answers the protocol and
+controller version, output recipes (``NOT_FOUND`` for variables it does not know) and input recipes (``IN_USE`` for
+registers another client holds), start and pause, and sends data packages at each recipe's frequency. The input
+registers are the controller's: they keep their values when a client goes and when the robot program restarts.
+The robot program's part — moving, in position, storing an offset, the grasp interlock, the grasp error — is
+:class:`SimRobotProgram`, which reads the input registers as ``config/ur/monoguide.script`` polls them and
+answers in the output registers 36-40 (``runtime_state`` PLAYING while it runs).
 """
 
 from __future__ import annotations
@@ -24,13 +26,13 @@ import numpy as np
 
 from monoguide.drivers import rtde_protocol as rtde
 from monoguide.drivers.errors import RobotMessageInvalid
+from monoguide.drivers.robot import COMMAND_OFFSET
 from monoguide.drivers.sim import part_supply
-from monoguide.drivers.sim.robot_motion import (
-    FAULT_MODES,
-    SimRobotProgram,
-    apply_command,
-    load_robot_spec,
-    run_program,
+from monoguide.drivers.sim.robot_motion import Request, SimRobotProgram
+from monoguide.drivers.sim.robot_serve import (
+    SimController,
+    add_program_arguments,
+    program_from_arguments,
     serve_controller,
 )
 from monoguide.solver.frames import T_to_ur_pose, ur_pose_to_T
@@ -79,23 +81,39 @@ class Client:
     sender: asyncio.Task[None] | None = None
 
 
-class UrController:
+class RegisterSource:
+    """The input registers as the URScript program reads them: the request they hold now (the same until the daemon
+    writes another)."""
+
+    level = True
+
+    def __init__(self, inputs: dict[str, float]) -> None:
+        self.inputs = inputs
+
+    def next_request(self) -> Request | None:
+        if not all(n in self.inputs for n in rtde.INPUT_RECIPE):
+            return None  # no client has written the recipe yet: the registers read 0
+        request = rtde.decode_request([self.inputs[n] for n in rtde.INPUT_RECIPE])
+        return Request(request.sequence, request.command, request.pose_number,
+                       ur_pose_to_T(np.array(request.offset_ur)), request.offset_ur)
+
+
+class UrController(SimController):
     """The controller: clients, the register bank and the robot program."""
 
     def __init__(self, program: SimRobotProgram, spec_path: Path, truth_path: Path) -> None:
-        self.program = program
-        self.spec_path = spec_path
-        self.truth_path = truth_path
+        self.inputs: dict[str, float] = {}
+        super().__init__(program, spec_path, truth_path, RegisterSource(self.inputs))
         self.clients: set[Client] = set()
         self.input_owner: dict[str, Client] = {}
-        self.inputs: dict[str, float] = {}
-        self.t0 = time.monotonic()
         self.next_recipe_id = 1
-        self.stalled = False
 
     # --- connections --------------------------------------------------------------------------
 
     async def serve_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        if self.refusing:  # a cut: the cable is out
+            writer.transport.abort()
+            return
         client = Client(writer, str(writer.get_extra_info("peername")))
         self.clients.add(client)
         log.info("client %s connected", client.peer)
@@ -112,6 +130,9 @@ class UrController:
             pass
         except RobotMessageInvalid as exc:
             log.warning("client %s broke the protocol, closing: %s", client.peer, exc)
+        except Exception:  # a fault of the simulator itself: said, never silent
+            log.exception("client %s: the simulated controller failed", client.peer)
+            raise
         finally:
             self._forget(client)
             writer.close()
@@ -122,22 +143,16 @@ class UrController:
             client.writer.transport.abort()
             self._forget(client)
 
-    def command(self, text: str) -> None:
-        """A fault command at run time (``none`` clears): a stall ends at once, the data flows again."""
-        if apply_command(self.program, self.truth_path, text) and self.stalled:
-            log.info("stall ends: the controller answers again")
-            self.stalled = False
-            for c in self.clients:
-                if c.started and c.outputs is not None and c.sender is None:
-                    c.sender = asyncio.get_running_loop().create_task(self._send_outputs(c))
+    def freeze(self) -> None:
+        for c in self.clients:
+            if c.sender is not None:
+                c.sender.cancel()
+                c.sender = None
 
-    # --- the robot program loop ---------------------------------------------------------------
-
-    async def run_program(self, stop: asyncio.Event) -> None:
-        await run_program(self.program, self.spec_path, self.truth_path, self.now, lambda: self.stalled, stop)
-
-    def now(self) -> float:
-        return time.monotonic() - self.t0
+    def resume(self) -> None:
+        for c in self.clients:
+            if c.started and c.outputs is not None and c.sender is None:
+                c.sender = asyncio.get_running_loop().create_task(self._send_outputs(c))
 
     def outputs(self) -> dict[str, object]:
         p = self.program
@@ -152,7 +167,8 @@ class UrController:
             "speed_scaling": 1.0, "target_speed_fraction": 1.0, "actual_digital_input_bits": 0,
             "actual_digital_output_bits": 0,
             rtde.ANSWER_ACK_SEQUENCE: p.ack_sequence, rtde.ANSWER_IN_POSITION: p.in_position,
-            rtde.ANSWER_PROGRAM_STATUS: p.program_status,
+            rtde.ANSWER_PROGRAM_STATUS: p.program_status, rtde.ANSWER_HELD_SEQUENCE: p.held_sequence,
+            rtde.ANSWER_OFFSET_VALID: 1 if p.offset_valid else 0,
         }
         return values
 
@@ -219,28 +235,11 @@ class UrController:
                 "data package for an unknown recipe or before start: ignored", level=2)))
             return
         _, values = rtde.decode_data_package(payload, recipe.types)
+        before = self.inputs.get(rtde.REQUEST_SEQUENCE)
         self.inputs.update(zip(recipe.names, values, strict=True))  # type: ignore[arg-type]
-        if not all(n in self.inputs for n in rtde.INPUT_RECIPE):
-            return
-        request = rtde.decode_request([self.inputs[n] for n in rtde.INPUT_RECIPE])
-        D_b = ur_pose_to_T(np.array(request.offset_ur))
-        new = self.program.handle(request.sequence, request.command, request.pose_number, D_b, request.offset_ur,
-                                  self.now())
-        if new and self.program.faulted:
-            self._enter_fault()
-
-    def _enter_fault(self) -> None:
-        fault = self.program.fault
-        if fault == "stall":
-            log.info("fault stall: the controller freezes")
-            self.stalled = True
-            for c in self.clients:
-                if c.sender is not None:
-                    c.sender.cancel()
-                    c.sender = None
-        elif fault == "drop":
-            log.info("fault drop: closing every connection")
-            asyncio.get_running_loop().call_soon(self.drop_all)
+        if self.inputs.get(rtde.REQUEST_SEQUENCE) != before and self.inputs.get(rtde.REQUEST_COMMAND) == COMMAND_OFFSET:
+            self.offset_arrived()
+        self.step()  # the program polls its registers every cycle (2 ms at 500 Hz): it sees them now
 
     async def _send_outputs(self, client: Client) -> None:
         recipe = client.outputs
@@ -273,20 +272,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--truth", type=Path, required=True, help="where to write what the robot did")
     parser.add_argument("--host", default="127.0.0.1")
     parser.add_argument("--port", type=int, default=rtde.DEFAULT_PORT)
-    parser.add_argument("--move-time", type=float, default=0.5, help="seconds per move to a measuring pose")
-    parser.add_argument("--fault", default="none", choices=FAULT_MODES)
-    parser.add_argument("--seed", type=int, default=None)
-    parser.add_argument("--commands", action="store_true",
-                        help="read fault commands from standard input, one per line (none clears)")
+    add_program_arguments(parser)
     part_supply.add_arguments(parser)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="sim-ur: %(message)s")
-    spec = load_robot_spec(args.spec)
-    program = SimRobotProgram(spec, np.random.default_rng(spec.seed + 3 if args.seed is None else args.seed),
-                              args.move_time, args.fault, supply=part_supply.from_arguments(args))
-    controller = UrController(program, args.spec, args.truth)
-    return asyncio.run(serve_controller(controller.serve_client, args.host, args.port, controller.run_program,
-                                        controller.drop_all, controller.command if args.commands else None))
+    controller = UrController(program_from_arguments(args), args.spec, args.truth)
+    return asyncio.run(serve_controller(controller, controller.serve_client, args.host, args.port, args.commands))
 
 
 if __name__ == "__main__":

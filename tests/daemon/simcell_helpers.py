@@ -92,3 +92,18 @@ def stop(process: subprocess.Popen[str], timeout_s: float = 10.0) -> int:
         if stream is not None:
             stream.close()
     return process.returncode
+
+
+def keep_reading(process: subprocess.Popen[str]) -> list[str]:
+    """Read ``process``'s standard output from now on in a thread (into the list returned), so that a sim-cell
+    that prints a line per part or per fault never blocks on a full pipe while the test talks to it."""
+    lines: list[str] = []
+    assert process.stdout is not None
+    stdout = process.stdout
+
+    def read() -> None:
+        for line in stdout:
+            lines.append(line.rstrip("\n"))
+
+    threading.Thread(target=read, daemon=True).start()
+    return lines

@@ -7,24 +7,34 @@ refuse (changing nothing) what would not load.
 
 from __future__ import annotations
 
+import errno
 import re
 import shutil
+import stat
 import tomllib
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+import tomlkit
+from calibration_text_editor import edit_calibration_text
 
 from monoguide.daemon.calibrate_session import open_session
 from monoguide.daemon.calibration_file import (
+    CalibrationFileError,
     CalibrationFileRefused,
+    CalibrationFileUneditable,
     CalibrationValueInvalid,
+    _calibrated_values,
+    _provenance,
     read_calibration_provenance,
     write_calibration,
 )
 from monoguide.daemon.cmd_calibrate import write_results
 from monoguide.daemon.config import load_cell_config
+from monoguide.drivers import atomic_file
 from monoguide.solver.frames import make_T, rotvec_to_matrix
 
 CONFIG_DIR = Path(__file__).parents[2] / "config"
@@ -194,3 +204,193 @@ def test_a_failed_accuracy_validation_keeps_the_calibration_out_unless_accepted(
     assert write_results(session, config, tmp_path / "work", False, accept=True) is True
     _assert_loads(config, steps)
     assert len(list(tmp_path.glob("*.previous.toml"))) == 1
+
+
+# --- the document writer against the text-level editor it replaced ---------------------------------
+
+
+def _template_with_added_keys_and_a_table_after_calibration() -> str:
+    """The template without [reference] T_cf_b and [camera] T_f_c (the writer adds them where the comments that
+    introduce the next table do not stand), with comments after a matrix's opening bracket and after a value,
+    and [tracker] moved after [calibration] below a comment of its own."""
+    text = (CONFIG_DIR / "cell-template.toml").read_text()
+    text = re.sub(r"# the robot base in the cell frame .*?\n\]\n", "", text, count=1, flags=re.S)
+    text = re.sub(r"# the calibrated camera mounting on the flange.*?\n\]\n", "", text, count=1, flags=re.S)
+    text = re.sub(r"(T_cf_si = \[)\n", r"\1  # from the last calibration\n", text, count=1)
+    text = re.sub(r"^(height = \d+)$", r"\1  # px", text, count=1, flags=re.M)
+    tracker = re.search(r"^\[tracker\].*?\n\n", text, flags=re.S | re.M)
+    assert tracker and "T_cf_b = [" not in text and "T_f_c = [" not in text
+    return text.replace(tracker.group(0), "") + "\n# the tracker the cell was measured with\n" + tracker.group(0)
+
+
+COMPARED = {
+    "sim-cell": lambda: (CONFIG_DIR / "sim-cell.toml").read_text(),
+    "cell-template": lambda: (CONFIG_DIR / "cell-template.toml").read_text(),
+    "template, keys added, a table after [calibration]": _template_with_added_keys_and_a_table_after_calibration,
+}
+
+
+@pytest.mark.parametrize("case", list(COMPARED))
+def test_the_document_writer_keeps_what_the_text_editor_kept(tmp_path: Path, case: str) -> None:
+    """Today's writer (tomlkit) and yesterday's text-level editor (calibration_text_editor.py), fed the same
+    values: both files load to the same keys in the same order and the same values (matrices within 1e-9), and
+    hold the same comments in the same order — but for the comments that introduced a [calibration.*] table,
+    which the text editor left stranded below the new section and the writer replaces with the section."""
+    text = COMPARED[case]()
+    source = CONFIG_DIR / ("sim-cell.toml" if case == "sim-cell" else "cell-template.toml")
+    steps = _steps(source, seed=21)
+    provenance = PROVENANCE | {"date": "2025-07-01T08:00:00+00:00"}
+    path = tmp_path / "cell.toml"
+    path.write_text(text)
+    write_calibration(path, steps, provenance)
+    written = path.read_text()
+    raw = tomllib.loads(text)
+    record = _provenance(steps, provenance, raw, tomllib.loads(written)["calibration"]["previous"], datetime.now(UTC))
+    edited = edit_calibration_text(text, _calibrated_values(steps, raw, path), record, path)
+
+    new, old = _entries(tomllib.loads(written)), _entries(tomllib.loads(edited))
+    assert [where for where, _ in new] == [where for where, _ in old]
+    for (where, a), (_, b) in zip(new, old, strict=True):
+        if isinstance(a, list) and a and all(isinstance(v, int | float | list) for v in a):
+            np.testing.assert_allclose(np.asarray(a, dtype=float), np.asarray(b, dtype=float), rtol=0, atol=1e-9,
+                                       err_msg=where)
+        else:
+            assert a == b, where
+    _assert_loads(path, steps)
+
+    introducing = {line for line in _comment_blocks_above(text, "[calibration.")}
+    assert introducing or case == "sim-cell"
+    assert _comments(written) == [c for c in _comments(edited) if c not in introducing]
+    kept = [c for c in _comments(text.split("\n[calibration]")[0])]
+    assert kept and _comments(written)[:len(kept)] == kept  # what stood before the section, in order
+    if case.startswith("template, keys"):
+        assert re.search(r"\n\]\nT_cf_b = \[\n(.*\n){4}\]\n\n# One \[\[measuring_poses\]\]", written)
+        assert re.search(r"\n# the tracker the cell was measured with\n\n?\[tracker\]", written)
+
+
+def _inline_tables() -> str:
+    """The simulated cell with [camera.intrinsics] as an inline table and the measuring poses as an inline array
+    of tables before the first header."""
+    doc = tomlkit.parse((CONFIG_DIR / "sim-cell.toml").read_text())
+    intrinsics = tomlkit.inline_table()
+    intrinsics.update(doc["camera"]["intrinsics"].unwrap())
+    del doc["camera"]["intrinsics"]
+    doc["camera"]["intrinsics"] = intrinsics
+    poses = tomlkit.array()
+    for pose in doc["measuring_poses"].unwrap():
+        entry = tomlkit.inline_table()
+        entry.update(pose)
+        poses.append(entry)
+    del doc["measuring_poses"]
+    return "measuring_poses = " + poses.as_string() + "  # inline\n\n" + doc.as_string()
+
+
+def _out_of_order() -> str:
+    """The simulated cell with [camera.intrinsics] at the end, away from [camera], and no [camera] T_f_c."""
+    text = (CONFIG_DIR / "sim-cell.toml").read_text()
+    intrinsics = re.search(r"^\[camera\.intrinsics\].*?\n\n", text, flags=re.S | re.M).group(0)
+    T_f_c = re.search(r"^T_f_c = \[\n(.*\n){4}\]\n", text, flags=re.M).group(0)
+    return text.replace(intrinsics, "").replace(T_f_c, "", 1) + "\n" + intrinsics
+
+
+@pytest.mark.parametrize("layout", [_inline_tables, _out_of_order])
+def test_tables_written_inline_or_out_of_order_are_edited(tmp_path: Path, layout: Any) -> None:
+    """Where the old text editor refused (CALIBRATION_FILE_UNEDITABLE), the document writer calibrates; the
+    simulated truth and every other value stay as they were."""
+    text = layout()
+    path = tmp_path / "cell.toml"
+    path.write_text(text)
+    steps = _steps(CONFIG_DIR / "sim-cell.toml", seed=8)
+    write_calibration(path, steps, PROVENANCE)
+    _assert_loads(path, steps)
+    calibrated = {"intrinsics", "T_f_c", "T_cf_b", "T_cf_w0", "T_cf_si", "calibration"}
+    before, after = tomllib.loads(text), tomllib.loads(path.read_text())
+    assert _uncalibrated(after, calibrated) == _uncalibrated(before, calibrated)
+    assert _comments(path.read_text())[:len(_comments(text))] == _comments(text)
+
+
+def _uncalibrated(data: Any, calibrated: set[str]) -> Any:
+    """The parsed file without the calibrated keys (the simulated truth's [sim] T_f_c is not one)."""
+    if isinstance(data, dict):
+        return {k: v if k == "sim" else _uncalibrated(v, calibrated) for k, v in data.items() if k not in calibrated}
+    if isinstance(data, list):
+        return [_uncalibrated(v, calibrated) for v in data]
+    return data
+
+
+@pytest.mark.parametrize(("text", "match"), [
+    (b"[camera\nbackend = 'sim'\n", "not valid TOML"),
+    (b"\xff\xfe[camera]\n", "not valid TOML"),
+    (b"camera = 5\n[reference]\nT_cf_w0 = []\n", r"no \[camera.intrinsics\]"),
+])
+def test_a_file_the_calibration_cannot_go_into_is_uneditable(tmp_path: Path, text: bytes, match: str) -> None:
+    path = tmp_path / "cell.toml"
+    path.write_bytes(text)
+    with pytest.raises(CalibrationFileUneditable, match=match) as raised:
+        write_calibration(path, {"intrinsics": _steps(CONFIG_DIR / "sim-cell.toml", seed=4)["intrinsics"]},
+                          PROVENANCE)
+    assert raised.value.plc_code == 728
+    assert path.read_bytes() == text and [p.name for p in tmp_path.iterdir()] == ["cell.toml"]
+
+
+def test_the_file_keeps_its_mode_and_a_failed_write_leaves_it_alone(tmp_path: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    path = _copy(tmp_path, "sim-cell.toml")
+    path.chmod(0o640)
+    before = path.read_bytes()
+    steps = _steps(path, seed=9)
+
+    def disk_full(fd: int) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    with monkeypatch.context() as patch:
+        patch.setattr(atomic_file.os, "fsync", disk_full)
+        with pytest.raises(CalibrationFileError, match="No space left") as raised:
+            write_calibration(path, steps, PROVENANCE)
+    assert raised.value.plc_code == 725
+    assert path.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == ["cell.toml"]
+
+    write_calibration(path, steps, PROVENANCE)
+    previous = tmp_path / read_calibration_provenance(path)["previous"]
+    assert previous.read_bytes() == before
+    assert stat.S_IMODE(path.stat().st_mode) == stat.S_IMODE(previous.stat().st_mode) == 0o640
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["cell.toml", previous.name])
+
+
+def _entries(data: Any, where: str = "") -> list[tuple[str, Any]]:
+    """(dotted key, value) of every value in the parsed file, in the file's order (tables as their keys)."""
+    if isinstance(data, dict):
+        return [e for key, value in data.items() for e in _entries(value, f"{where}.{key}" if where else key)]
+    if isinstance(data, list) and data and all(isinstance(v, dict) for v in data):
+        return [e for i, value in enumerate(data) for e in _entries(value, f"{where}[{i}]")]
+    return [(where, data)]
+
+
+def _comments(text: str) -> list[str]:
+    """Every comment of a TOML text in order (whole-line ones and those after a value), outside strings."""
+    out = []
+    for line in text.splitlines():
+        quote = None
+        for i, c in enumerate(line):
+            if quote and c == "\\" and quote == '"':
+                continue
+            if quote:
+                quote = None if c == quote and line[i - 1] != "\\" else quote
+            elif c in "\"'":
+                quote = c
+            elif c == "#":
+                out.append(line[i:].strip())
+                break
+    return out
+
+
+def _comment_blocks_above(text: str, header: str) -> list[str]:
+    """The comment lines directly above each header line starting with ``header``."""
+    lines, out = text.splitlines(), []
+    for i, line in enumerate(lines):
+        if line.startswith(header):
+            k = i
+            while k > 0 and lines[k - 1].lstrip().startswith("#"):
+                k -= 1
+            out += [c.strip() for c in lines[k:i]]
+    return out

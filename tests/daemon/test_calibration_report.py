@@ -6,8 +6,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
+from figure_checks import assert_readable, capture, unit
 from PIL import Image
 
+from monoguide.daemon import calibration_report
 from monoguide.daemon.calibration_report import CHART_SIZE, FIGURES, PLAN_SIZE, REPORT_NAME, TRUTH_FIGURE, write_report
 from monoguide.daemon.config import load_cell_config
 
@@ -66,16 +69,27 @@ def _pictures(directory: Path) -> dict[str, tuple[int, int]]:
     return out
 
 
-def test_a_whole_simulated_session_gives_every_figure(tmp_path: Path) -> None:
+@pytest.fixture(scope="module")
+def whole(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict[str, Any], Path, dict[str, dict[str, Any]]]:
+    """A whole simulated session's report, written once: the session, the Markdown's path and what each
+    figure showed just before it was written."""
     session = _session(seed=4, steps=STEPS, sim=True)
-    out = write_report(tmp_path / "report", session)
-    assert out == tmp_path / "report" / REPORT_NAME
+    with pytest.MonkeyPatch.context() as patch:
+        seen = capture(patch, calibration_report)
+        out = write_report(tmp_path_factory.mktemp("whole") / "report", session)
+    return session, out, seen
+
+
+def test_a_whole_simulated_session_gives_every_figure(whole) -> None:
+    _, out, _ = whole
+    assert out.name == REPORT_NAME and out.parent.name == "report"
     text = out.read_text()
     expected = {name for step in STEPS for name in FIGURES[step]} | {TRUTH_FIGURE}
     sizes = _pictures(out.parent)
     assert set(sizes) == expected
     wide = {"measuring-poses.png", "uncertainty-map.png"}
     assert all(size == (PLAN_SIZE if name in wide else CHART_SIZE) for name, size in sizes.items())
+    assert all((out.parent / name).stat().st_size < 300_000 for name in expected)
     for name in expected:
         assert f"![{name}]({name})" in text
     assert "TABLE-3-MARKER" in text and "**passed**" in text and "sim camera SIM-1" in text
@@ -84,6 +98,82 @@ def test_a_whole_simulated_session_gives_every_figure(tmp_path: Path) -> None:
     # the measuring poses are drawn: the plan is not blank where the cameras are
     with Image.open(out.parent / "measuring-poses.png") as image:
         assert len(np.unique(np.asarray(image.convert("RGB")).reshape(-1, 3), axis=0)) > 5
+
+
+# the unit of each plotting axes' y label (left, then a right-hand twin or the next panel) and of each colour bar
+UNITS = {
+    "intrinsics-residuals.png": (["px"], []),
+    "residuals-cell.png": (["mm"], []),
+    "residuals-base.png": (["mm"], []),
+    "residuals-part.png": (["mm"], []),
+    "sfi-spread.png": (["mm", "deg"], []),
+    "measuring-poses.png": (["mm", "mm"], []),
+    "uncertainty-map.png": (["mm", "mm"], ["mm", "deg"]),
+    "repeatability.png": (["mm", "deg"], []),
+    "accuracy.png": (["mm", "deg"], []),
+    "truth-errors.png": ([None], []),  # a ratio to the target
+}
+
+
+def test_every_figure_names_its_quantities_and_units(whole) -> None:
+    _, _, seen = whole
+    assert set(seen) == set(UNITS)
+    for name, (y_units, bar_units) in UNITS.items():
+        figure = seen[name]
+        assert_readable(figure)
+        assert [unit(ax["y"]) for ax in figure["axes"]] == y_units, name
+        assert [unit(label) for label, *_ in figure["colorbars"]] == bar_units, name
+        assert all(ax["x"] for ax in figure["axes"] if ax["x"] is not None), name
+    # multi-series charts carry a legend: bars beside their RMS / tolerance / prediction, or mm beside deg
+    for name in ("residuals-cell.png", "sfi-spread.png", "repeatability.png", "accuracy.png", "truth-errors.png"):
+        assert len(seen[name]["legend"]) >= 2, name
+    for name in ("measuring-poses.png", "uncertainty-map.png"):  # drawings of the cell and maps over it: to scale
+        assert all(ax["equal"] and unit(ax["x"]) == "mm" for ax in seen[name]["axes"]), name
+
+
+def test_the_figures_show_the_sessions_numbers(whole) -> None:
+    session, _, seen = whole
+    steps, config = session["steps"], load_cell_config(CONFIG_PATH)
+    (part,) = seen["residuals-part.png"]["axes"]
+    assert part["xticks"] == list(config.part.point_names)
+    np.testing.assert_allclose(part["bars"][0], list(steps["part"]["residuals_mm"].values()))
+    assert part["points"]["RMS, 0.02 mm"][1].tolist() == [0.02, 0.02]
+    bars, dots = seen["accuracy.png"]["axes"]
+    np.testing.assert_allclose(bars["bars"][0], [row["dT_mm"] for row in steps["accuracy"]["rows"]])
+    np.testing.assert_allclose(dots["points"]["dR, rotation (deg, right)"][1],
+                               [row["dR_deg"] for row in steps["accuracy"]["rows"]])
+    assert bars["points"]["tolerance, 0.5 mm"][1][0] == 0.5 and bars["ylim"][1] > 0.5
+    assert dots["points"]["tolerance, 0.05 deg"][1][0] == 0.05 and dots["ylim"][1] > 0.05
+    mm, deg = seen["repeatability.png"]["axes"]
+    np.testing.assert_allclose(mm["bars"][0], steps["verify"]["sigma_mm"])
+    assert mm["xticks"] == ["x", "y", "z"] and deg["xticks"] == ["rx", "ry", "rz"]
+    assert mm["points"]["planner's predicted σ, 0.191 mm"][1][0] == 0.191
+    (truth,) = seen["truth-errors.png"]["axes"]
+    ratio = dict(zip(truth["xticks"], truth["bars"][0], strict=True))
+    assert ratio["base_mm"] == pytest.approx(0.012 / 0.05) and ratio["focal_rel_error"] == pytest.approx(0.4)
+    assert ratio["hand_eye_mm"] == 0.0  # no target: no bar
+    above, side = seen["measuring-poses.png"]["axes"]
+    holes = np.column_stack(above["points"]["featured hole"])
+    np.testing.assert_allclose(holes, config.part.points_w[:, :2])
+    np.testing.assert_allclose(side["points"]["featured hole"][1], config.part.points_w[:, 2])
+    assert [e.split(":")[0] for e in seen["measuring-poses.png"]["legend"] if e.startswith("S")] == \
+        ["S1", "S2", "S3", "S4"]
+
+
+def test_the_uncertainty_map_spans_its_values_around_the_predicted_sigma(whole) -> None:
+    """The colour scales run from each map's smallest to its largest value; at the reference part (no shift)
+    the map is the simulated cell's camera-centred prediction at 0.1 px, 0.05 mm / 0.01 deg: 0.191 mm and
+    0.0185 deg (docs/planning.md)."""
+    _, _, seen = whole
+    mm_bar, deg_bar = seen["uncertainty-map.png"]["colorbars"]
+    (mm_label, mm_low, mm_high, mm_values), (_, deg_low, deg_high, deg_values) = mm_bar, deg_bar
+    assert (mm_low, mm_high) == (mm_values.min(), mm_values.max()) and mm_high > mm_low
+    assert (deg_low, deg_high) == (deg_values.min(), deg_values.max()) and deg_high > deg_low
+    assert mm_values.shape == (11, 11) and "grasp point" in mm_label
+    assert mm_values[5, 5] == pytest.approx(0.191, rel=0.005)
+    assert deg_values[5, 5] == pytest.approx(0.0185, rel=0.005)
+    left = seen["uncertainty-map.png"]["axes"][0]
+    assert left["xlim"] == pytest.approx((-55.0, 55.0)) and left["ylim"] == pytest.approx((-55.0, 55.0))  # +-50 mm
 
 
 def test_a_partial_real_session_reports_only_its_steps(tmp_path: Path) -> None:

@@ -158,6 +158,24 @@ def test_show_unknown_cycle_is_a_clear_error(seeded: Seeded) -> None:
     assert run.stderr.startswith("JOURNAL_ENTRY_MISSING") and "no cycle 99" in run.stderr and run.stdout == ""
 
 
+@pytest.mark.parametrize("number", ["0", "-3", "99999999999999999999", str(2**63)])
+@pytest.mark.parametrize("command", ["show", "resolve"])
+def test_a_number_beyond_any_cycle_is_refused_with_623(seeded: Seeded, command: str, number: str) -> None:
+    run = _run("journal", command, "--state-dir", str(seeded.state_dir), "--", number)
+    assert run.exit_code == 1, run.output
+    assert run.stderr.startswith("JOURNAL_ENTRY_MISSING") and f"no cycle {number}" in run.stderr
+    assert "Traceback" not in run.output
+
+
+@pytest.mark.parametrize("command", [["journal", "list"], ["journal", "show", "1"], ["status"]])
+def test_an_empty_state_dir_option_is_a_usage_error(tmp_path: Path, command: list[str],
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)  # where an empty path would have pointed
+    run = _run(*command, "--state-dir", "")
+    assert run.exit_code == 2, run.output
+    assert "STATE_DIR_INVALID" in run.stderr and "--state-dir is empty" in run.stderr
+
+
 # --- resolve ------------------------------------------------------------------------------------
 
 

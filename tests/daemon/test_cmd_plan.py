@@ -10,13 +10,19 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from figure_checks import assert_readable, describe, unit
 from typer.testing import CliRunner
 
 from monoguide.daemon.cli import app
+from monoguide.daemon.cmd_plan import MAP_SIZE, _render_map
 from monoguide.daemon.config import load_cell_config
+from monoguide.daemon.plan_drawing import LAYOUT_SIZE, draw_layout
+from monoguide.daemon.plan_layout import cell_layout
 from monoguide.drivers.sim.cell import part_deviation
+from monoguide.solver.camera import PAPER_CAMERA
 from monoguide.solver.frames import compose, invert
-from monoguide.solver.planning import look_at_poses
+from monoguide.solver.planning import assess_layout, look_at_poses, uncertainty_map
+from monoguide.solver.synthetic import PAPER_ROOF_POINTS_W
 
 ROOT = Path(__file__).parents[2]
 EXAMPLE = ROOT / "examples" / "example-record.json"
@@ -98,7 +104,27 @@ def test_the_map_is_said_to_be_written_only_when_it_was(tmp_path: Path) -> None:
     run = plan("--steps", "4", "--out", str(out))
     assert run.exit_code == 0 and f"Map written to {out}" in run.stdout
     image = cv2.imread(str(out))
-    assert image is not None and image.shape == (2058 // 4, 2456 // 4, 3)
+    assert image is not None and image.shape == (MAP_SIZE[1], MAP_SIZE[0], 3)
+    assert (cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) < 128).mean() > 0.2  # the map is drawn, not a blank page
+
+
+def test_the_fig5_map_has_pixel_axes_and_a_colour_bar_spanning_the_map() -> None:
+    """The paper's camera (2456 x 2058 px): the axes cover the image quadrant, 0..1228 px along u and
+    1029..0 px along v (downwards, as in the image); the log colour scale runs from the map's smallest sigma
+    to its largest, in mm; the quarter-from-the-edge position is marked at (614, 514.5) px and named."""
+    fig5 = uncertainty_map(PAPER_CAMERA, PAPER_ROOF_POINTS_W, 650.0, steps=4)
+    seen = describe(_render_map(fig5, PAPER_CAMERA.width, PAPER_CAMERA.height))
+    assert_readable(seen)
+    (ax,) = seen["axes"]
+    assert unit(ax["x"]) == "px" and unit(ax["y"]) == "px" and ax["equal"]
+    assert ax["xlim"] == (0.0, 1228.0) and ax["ylim"] == (1029.0, 0.0)
+    ((label, low, high, values),) = seen["colorbars"]
+    assert unit(label) == "mm" and "log" in label
+    assert (low, high) == (fig5.sigma_trans_mm.min(), fig5.sigma_trans_mm.max()) and low < high
+    np.testing.assert_array_equal(np.sort(values.ravel()), np.sort(fig5.sigma_trans_mm.ravel()))
+    ((marker, (u, v)),) = [(k, p) for k, p in ax["points"].items() if "quarter" in k]
+    assert (u.tolist(), v.tolist()) == ([614.0], [514.5]) and marker in seen["legend"]
+    assert seen["size"] == MAP_SIZE and any("Fig. 5" in t for t in seen["titles"])
 
 
 def test_the_fig5_study_is_made_for_the_configured_camera(tmp_path: Path) -> None:
@@ -146,7 +172,36 @@ def test_layout_plans_the_configured_cell_and_holds_the_envelope(tmp_path: Path)
     current = [corner_margin(np.array(p["T_cf_si"]), i) for i, p in enumerate(report["current"]["poses"])]
     assert report["current"]["margin_px_min"] == pytest.approx(min(current), abs=0.05) and min(current) < -300
     image = cv2.imread(str(picture))
-    assert image is not None and image.shape[1] == 1800 and report["layout_png"] == str(picture)
+    assert image is not None and image.shape == (LAYOUT_SIZE[1], LAYOUT_SIZE[0], 3)
+    assert report["layout_png"] == str(picture)
+
+
+def test_the_layout_drawing_is_to_scale_in_mm_and_shows_every_camera_and_hole(tmp_path: Path) -> None:
+    """The simulated cell's poses (its plan) drawn beside the hand-written straight-down ones: both views in mm
+    at equal scale, every hole where the config puts it, the four planned cameras where the config's
+    ``T_cf_si`` put them, the current cameras 650 mm above their holes (as written above), a legend naming
+    all of it."""
+    config, straight = load_cell_config(SIM_CELL), load_cell_config(straight_down_cell(tmp_path))
+    cell = cell_layout(config, None)
+    planned = assess_layout(cell.request, cell.T_w0_si, cell.observed)
+    current = [invert(straight.reference.T_cf_w0) @ p.T_cf_si for p in straight.measuring_poses]
+    seen = describe(draw_layout(cell.request, planned, current, title="the cell"))
+    assert_readable(seen)
+    above, side = seen["axes"]
+    assert [unit(ax["x"]) for ax in (above, side)] == ["mm", "mm"] and above["equal"] and side["equal"]
+    assert [unit(ax["y"]) for ax in (above, side)] == ["mm", "mm"] and "z" in side["y"] and "y" in above["y"]
+    points = config.part.points_w
+    np.testing.assert_allclose(np.column_stack(above["points"]["featured hole"]), points[:, :2])
+    np.testing.assert_allclose(side["points"]["featured hole"][1], points[:, 2])
+    current = np.column_stack(side["points"]["the cell's current cameras"])
+    np.testing.assert_allclose(current[:, 1], points[:, 2] + 650.0, atol=1e-6)  # straight down from 650 mm
+    for i, pose in enumerate(config.measuring_poses):
+        apex = next(p for k, p in above["points"].items() if k.startswith(f"S{i + 1}:"))
+        T_w0_si = invert(config.reference.T_cf_w0) @ pose.T_cf_si
+        np.testing.assert_allclose([apex[0][0], apex[1][0]], T_w0_si[:2, 3])
+    legend = seen["legend"]
+    assert sum(e.startswith("S") for e in legend) == 4 and "featured hole" in legend
+    assert any("64 corners" in e for e in legend) and seen["size"] == LAYOUT_SIZE
 
 
 def test_layout_human_output_puts_the_plan_beside_the_cell(tmp_path: Path) -> None:
@@ -240,3 +295,22 @@ def test_the_grasp_point_of_the_config_is_where_sigma_is_predicted(tmp_path: Pat
     report = json.loads(plan("--layout", "--config", str(config), "--json").stdout)
     assert report["grasp_point_w"] == [0.0, 0.0, 0.0]
     assert report["current"]["sigma_trans_mm"] == pytest.approx(report["current"]["sigma_origin_mm"], abs=2e-6)
+
+
+def test_write_edits_the_file_as_toml_keeping_the_comments_that_introduce_the_next_table(tmp_path: Path) -> None:
+    """The copy is the source edited as a TOML document: the old poses go with their own comments, the comment
+    lines directly above the table after them stay there, a multi-line string (which a line-by-line editor
+    could not see through) is kept."""
+    cell = straight_down_cell(tmp_path)
+    text = cell.read_text().replace('\nname = "S2"', '\n# S2 by hand\nname = "S2"', 1)
+    text = text.replace("\n[tracker]", "\n# the devices\n[tracker]", 1)
+    text = text.replace('name = "paper roof cell (simulated)"', 'name = """paper roof cell\n[simulated]"""', 1)
+    cell.write_text(text)
+    new = tmp_path / "planned.toml"
+    run = plan("--layout", "--config", str(cell), "--write", str(new), "--json")
+    assert run.exit_code == 0, run.output
+    written = new.read_text()
+    assert "# S2 by hand" not in written and written.count("  # planned by `monoguide plan --layout`") == 4
+    assert re.search(r"\n\]\n\n# the devices\n\[tracker\]", written)
+    assert load_cell_config(new).name == "paper roof cell\n[simulated]"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cell.toml", "planned.toml"]  # no temporary file left

@@ -174,7 +174,7 @@ def test_config_errors_name_the_section_key_and_value(tmp_path: Path) -> None:
 
 def test_probe_tracker_section_missing_or_port_absent(tmp_path: Path) -> None:
     result = runner.invoke(app, ["probe", "tracker", "--config", str(CONFIG_DIR / "viky-camera.toml")])
-    assert result.exit_code == 2 and "no [tracker] section" in result.output
+    assert result.exit_code == 2 and "[tracker]: missing section" in result.output
     port = tmp_path / "ttyNOPE"
     (tmp_path / "cell.toml").write_text(_viky_config() + f'\n[tracker]\nbackend = "serial"\nport = "{port}"\n')
     result = runner.invoke(app, ["probe", "tracker", "--config", str(tmp_path / "cell.toml")])

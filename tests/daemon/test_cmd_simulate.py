@@ -15,8 +15,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from figure_checks import assert_readable, capture, unit
 from PIL import Image
 
+from monoguide.daemon import simulate_report
 from monoguide.daemon.config import load_cell_config
 from monoguide.daemon.journal import CycleEntry, Journal
 from monoguide.daemon.simulate_config import derive_config, dumps_toml
@@ -138,6 +140,43 @@ def test_the_report_has_markdown_and_three_plots(tmp_path: Path) -> None:
         assert picture.shape == (420, 900) and (picture < 128).sum() > 500  # drawn, not blank
     assert "| 3 | camera timeout | DEVICE_TIMEOUT | DEVICE_TIMEOUT | yes | yes |" in text
     assert f"{summary['grasp_rms_mm']:.4f} mm" in text
+
+
+def test_the_report_plots_show_the_truth_log_with_units_and_legends(tmp_path: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """What each plot shows, read from its matplotlib figure against the seeded witnesses: grasp errors of the
+    good parts in mm (bars) and deg (dots, right axis), the failed cycles marked; the median of each stage in
+    ms; the offsets written beside the ideal ones, x-y in mm and A-B in deg, to scale."""
+    records, rows, truth, faults = _witnesses(tmp_path)
+    cycles = join_cycles(records, rows, truth, faults)
+    summary = summarize(cycles, truth, rows, faults)
+    seen = capture(monkeypatch, simulate_report)
+    write_report(tmp_path / "report", cycles, summary, "monoguide simulate --faults")
+    assert set(seen) == {"grasp-error.png", "time-split.png", "offsets.png"}
+    for name, figure in seen.items():
+        assert_readable(figure)
+        assert figure["size"] == (900, 420), name
+    good = {t["part"]: t for t in truth if t["part"] in (1, 2, 4, 6)}  # parts 3 and 5 failed, 7 was dropped
+    bars, dots = seen["grasp-error.png"]["axes"]
+    assert "cycle" in bars["x"] and unit(bars["y"]) == "mm" and dots["x"] is None and unit(dots["y"]) == "deg"
+    np.testing.assert_allclose(bars["bars"][0], [good[p]["grasp_error_mm"] for p in (1, 2, 4, 6)], rtol=1e-12)
+    cycle, deg = dots["points"]["grasp error (deg, right)"]
+    assert cycle.tolist() == [1, 2, 4, 6]
+    np.testing.assert_allclose(deg, [good[p]["grasp_error_deg"] for p in (1, 2, 4, 6)], rtol=1e-12)
+    assert bars["points"]["failed cycle (no grasp)"][0].tolist() == [3, 5, 7]
+    assert len(seen["grasp-error.png"]["legend"]) == 3
+    (split,) = seen["time-split.png"]["axes"]
+    assert unit(split["x"]) == "ms" and split["y"]
+    assert split["yticks"][:3] == ["robot_motion", "exposure", "hole_finding"]
+    motion = 1000 * float(np.median([2.0 + p / 10 for p in (1, 2, 4, 6)]))  # the witnesses' robot_motion, ms
+    assert split["barh"][0][0] == pytest.approx(motion) and split["xlim"][1] > 3000.0  # the cycle's 3 s shown
+    mm, deg_panel = seen["offsets.png"]["axes"]
+    assert (unit(mm["x"]), unit(mm["y"]), unit(deg_panel["x"]), unit(deg_panel["y"])) == ("mm", "mm", "deg", "deg")
+    assert mm["equal"] and deg_panel["equal"] and "ideal (truth log)" in seen["offsets.png"]["legend"]
+    written = np.array([r["offset_written"] for r in records if r["offset_written"]])  # what the line read
+    np.testing.assert_allclose(np.column_stack(mm["points"]["written by the service"]), written[:, :2])
+    np.testing.assert_allclose(np.column_stack(deg_panel["points"]["ideal (truth log)"]),
+                               np.array([good[p]["offset_ideal"] for p in (1, 2, 4, 6)])[:, 3:5])
 
 
 def test_every_fault_of_the_plan_is_known_to_the_simulated_devices() -> None:

@@ -120,7 +120,7 @@ def test_measuring_pose_from_taught_flange_pose_and_mounting(tmp_path: Path) -> 
         ("[[measuring_poses]]", "[[measuring_poses]]\npoints = [5]", r"points = \[5\]: \[5\] not among"),
         ('backend = "serial"', 'backend = "sim"', r"needs a \[sim\] section"),
         ("baud = 115200", "baud = 9600.5", r"\[tracker\]\.baud = 9600\.5: expected an integer"),
-        ("baud = 115200", "timeout_s = 0", r"\[tracker\]\.timeout_s = 0: must be positive"),
+        ("baud = 115200", "timeout_s = 0", r"\[tracker\]\.timeout_s = 0: must be 0\.05 to 600 s"),
         ('cti = "producer.cti"', "cti = 7", r"\[camera\]\.cti = 7: expected a string"),
         ("width = 640", "width = 640.5", r"\[camera\.intrinsics\]\.width = 640\.5: expected an integer"),
         ("k2 = 0.07", 'k2 = "0.07"', r"\[camera\.intrinsics\]\.k2 = '0\.07': expected a finite number"),

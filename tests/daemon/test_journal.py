@@ -19,7 +19,9 @@ from monoguide.daemon.journal import (
     Journal,
     JournalEntryInvalid,
     JournalEntryMissing,
+    JournalError,
     JournalNotADatabase,
+    JournalReplaced,
     JournalSchemaUnknown,
 )
 from monoguide.drivers.errors import DeviceTimeout
@@ -93,7 +95,7 @@ def test_round_trip_and_the_counter_survives_reopening(tmp_path: Path) -> None:
             journal.cycle(7)
     db = sqlite3.connect(tmp_path / "state" / "journal.sqlite3")
     assert db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
-    assert db.execute("PRAGMA user_version").fetchone()[0] == 1
+    assert db.execute("PRAGMA user_version").fetchone()[0] == 2
 
 
 def test_a_contradictory_or_non_json_entry_is_refused_and_nothing_written(tmp_path: Path) -> None:
@@ -167,7 +169,8 @@ def test_another_programs_database_and_an_unknown_version_are_refused(tmp_path: 
     db = sqlite3.connect(tmp_path / "newer" / "journal.sqlite3")
     db.execute("PRAGMA user_version = 7")
     db.close()
-    with pytest.raises(JournalSchemaUnknown, match=r"schema version 7 \(written by a newer monoguide\?\).*version 1"):
+    with pytest.raises(JournalSchemaUnknown,
+                       match=r"schema version 7 \(written by a newer monoguide\?\).*versions 1, 2 only"):
         Journal(tmp_path / "newer")
 
 
@@ -219,3 +222,153 @@ def test_amend_timings_adds_the_timings_known_after_done_and_nothing_else(tmp_pa
         row, entry = journal.cycle(1), expected_entry(1, _record())
         assert row.timings_s == {**entry.timings_s, "plc_journal": 0.004, "cycle": 2.5}
         assert (row.record, row.result, row.image_paths) == (entry.record, entry.result, entry.image_paths)
+
+
+# --- cycle numbers without end, intents, the file's identity -------------------------------------------------
+
+
+def _set_counter(state_dir: Path, counter: int) -> None:
+    """A journal whose last cycle is ``counter``, as a long-running cell's would be (the row and the sequence)."""
+    with Journal(state_dir) as journal:
+        journal.commit_cycle(expected_entry(1, _record()))
+    db = sqlite3.connect(state_dir / "journal.sqlite3")
+    with db:
+        db.execute("UPDATE cycle SET number = ? WHERE number = 1", (counter,))
+        db.execute("UPDATE sqlite_sequence SET seq = ? WHERE name = 'cycle'", (counter,))
+    db.close()
+
+
+@pytest.mark.parametrize("counter", [65_534, 300_000, 2**31 - 2, 2**40])
+def test_cycle_numbers_count_on_past_16_and_32_bits(tmp_path: Path, counter: int) -> None:
+    _set_counter(tmp_path, counter)
+    with Journal(tmp_path) as journal:
+        assert journal.cycle_counter() == counter
+        numbers = [journal.commit_cycle(expected_entry(n, _record())) for n in range(1, 4)]
+        assert numbers == [counter + 1, counter + 2, counter + 3]
+        assert [row.number for row in journal.last_cycles(3)] == [counter + 3, counter + 2, counter + 1]
+        assert journal.cycle(counter + 2).part_tag == 2
+    with Journal(tmp_path) as journal:  # and after reopening
+        assert journal.cycle_counter() == counter + 3
+        assert journal.next_number() == counter + 4
+
+
+def test_an_intent_is_committed_before_and_settled_with_its_cycle(tmp_path: Path) -> None:
+    D_b = [[1.0, 0.0, 0.0, 12.5], [0.0, 1.0, 0.0, -3.25], [0.0, 0.0, 1.0, 0.75], [0.0, 0.0, 0.0, 1.0]]
+    with Journal(tmp_path) as journal:
+        number = journal.next_number()
+        journal.commit_intent(number, 41, (12.5, -3.25, 0.75, 0.0, 0.0, 0.0), D_b)
+        pending = journal.unsettled_intents()
+        assert [(i.cycle, i.sequence, i.registers, i.D_b, i.outcome) for i in pending] == [
+            (1, 41, (12.5, -3.25, 0.75, 0.0, 0.0, 0.0), D_b, None)]
+        assert journal.commit_cycle(expected_entry(1, _record()), number,
+                                    intent_outcome=("acknowledged", "sequence 41 acknowledged")) == 1
+        assert journal.unsettled_intents() == []
+        intent = journal.intent(1)
+        assert intent is not None and (intent.outcome, intent.cleared, intent.detail) == (
+            "acknowledged", False, "sequence 41 acknowledged")
+        assert intent.settled_at is not None and intent.settled_at >= intent.intended_at
+        # an intent left open (the controller lost mid-write), settled later against the robot's report
+        journal.commit_intent(2, 42, (1.0,) * 6, D_b)
+        journal.commit_cycle(expected_entry(2, _record()), 2)
+        assert [i.cycle for i in journal.unsettled_intents()] == [2]
+        journal.settle_intent(2, "held", "the robot reported held sequence 42", cleared=True)
+        settled = journal.intent(2)
+        assert settled is not None and (settled.outcome, settled.cleared) == ("held", True)
+        assert journal.last_sequence() == 42
+        with pytest.raises(JournalEntryInvalid, match="outcome 'maybe'"):
+            journal.settle_intent(2, "maybe", "")
+        with pytest.raises(JournalEntryMissing, match="no offset intent for cycle 9"):
+            journal.settle_intent(9, "held", "")
+        with pytest.raises(JournalError, match="offset intent of cycle 2"):  # one intent per cycle
+            journal.commit_intent(2, 43, (0.0,) * 6, D_b)
+
+
+def test_a_version_1_journal_is_upgraded_in_place_and_keeps_its_rows(tmp_path: Path) -> None:
+    db = sqlite3.connect(tmp_path / "journal.sqlite3")
+    from monoguide.daemon import journal as journal_module
+
+    db.executescript(f"BEGIN; {journal_module._SCHEMA} PRAGMA application_id = {journal_module.APPLICATION_ID};"
+                     " PRAGMA user_version = 1; COMMIT;")
+    db.close()
+    with Journal(tmp_path) as journal:
+        journal.commit_cycle(expected_entry(1, _record()))
+    with Journal(tmp_path) as journal:
+        _assert_row_is(journal, 1)
+        journal.commit_intent(2, 7, (0.0,) * 6, [[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
+        assert [i.sequence for i in journal.unsettled_intents()] == [7]
+    db = sqlite3.connect(tmp_path / "journal.sqlite3")
+    assert db.execute("PRAGMA user_version").fetchone()[0] == 2
+    db.close()
+
+
+def test_a_recreated_journal_continues_the_numbering_it_is_given(tmp_path: Path) -> None:
+    with Journal(tmp_path) as journal:
+        assert journal.continue_numbering(37_856)
+        assert journal.commit_cycle(expected_entry(1, _record())) == 37_857
+        assert not journal.continue_numbering(5)  # a journal with cycles keeps its own numbers
+        assert journal.commit_cycle(expected_entry(2, _record())) == 37_858
+    with Journal(tmp_path / "other") as journal:
+        assert not journal.continue_numbering(0)
+        assert journal.commit_cycle(expected_entry(1, _record())) == 1
+
+
+@pytest.mark.parametrize("how", ["deleted", "replaced"])
+def test_a_journal_deleted_or_replaced_under_the_writer_refuses_every_commit(tmp_path: Path, how: str) -> None:
+    journal = Journal(tmp_path)
+    try:
+        journal.commit_cycle(expected_entry(1, _record()))
+        path = tmp_path / "journal.sqlite3"
+        for suffix in ("", "-wal", "-shm"):
+            Path(str(path) + suffix).unlink(missing_ok=True)
+        if how == "replaced":
+            with Journal(tmp_path / "elsewhere"):
+                pass
+            os.replace(tmp_path / "elsewhere" / "journal.sqlite3", path)
+        with pytest.raises(JournalReplaced, match=how):
+            journal.commit_cycle(expected_entry(2, _record()))
+        with pytest.raises(JournalReplaced):
+            journal.commit_intent(2, 1, (0.0,) * 6, [])
+        with pytest.raises(JournalReplaced):
+            journal.settle_intent(1, "held", "")
+    finally:
+        journal.close()
+    with Journal(tmp_path) as reopened:  # a restart opens whatever is there now
+        assert reopened.cycle_counter() == 0
+
+
+def test_the_queries_a_long_journal_runs_between_and_after_cycles_never_scan_the_table(tmp_path: Path) -> None:
+    """Their cost stays flat as the journal grows (benchmarks/bench_journal.py measures it)."""
+    from monoguide.daemon import journal as journal_module
+
+    with Journal(tmp_path) as journal:
+        journal.commit_cycle(expected_entry(1, _record()))
+    db = sqlite3.connect(tmp_path / "journal.sqlite3")
+    plans = {
+        "prune": db.execute(f"EXPLAIN QUERY PLAN {journal_module.PRUNE_QUERY}").fetchall(),
+        "last cycles": db.execute(f"EXPLAIN QUERY PLAN {journal_module.LAST_CYCLES_QUERY}", (9, 20)).fetchall(),
+        "one cycle": db.execute(f"EXPLAIN QUERY PLAN SELECT {journal_module._COLUMNS} FROM cycle WHERE number = ?",
+                                (1,)).fetchall(),
+    }
+    db.close()
+    for name, plan in plans.items():
+        details = " / ".join(row[3] for row in plan)
+        assert "USING INDEX cycle_images_kept" in details or "USING INTEGER PRIMARY KEY" in details, (name, details)
+
+
+def test_pruning_touches_only_the_cycles_whose_images_are_kept(tmp_path: Path) -> None:
+    with Journal(tmp_path) as journal:
+        for n in range(1, 7):
+            journal.commit_cycle(expected_entry(n, _record()))
+        images = tmp_path / "images"
+        for n in range(1, 7):
+            (images / str(n)).mkdir(parents=True)
+            for i in range(4):
+                (images / str(n) / f"view{i}.png").write_bytes(b"x" * 1000)
+        report = journal.prune_images(max_bytes=8000, max_age_s=1e12, now=1_790_000_100.0)
+        assert (report.cycles, report.files, report.bytes_freed) == (4, 16, 16000)  # the 4 oldest go
+        db = sqlite3.connect(tmp_path / "journal.sqlite3")
+        kept = db.execute("SELECT number FROM cycle INDEXED BY cycle_images_kept WHERE images_pruned_at IS NULL "
+                          "AND images_json <> '[]' ORDER BY number").fetchall()
+        db.close()
+        assert kept == [(5,), (6,)]  # the index now holds only the two cycles with images on disk
+        assert journal.prune_images(max_bytes=8000, max_age_s=1e12).cycles == 0

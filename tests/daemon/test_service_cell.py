@@ -19,13 +19,15 @@ from typing import Any
 
 import numpy as np
 import pytest
-from simcell_helpers import SIM_CELL, cell_config, start_sim_cell, stop
+from simcell_helpers import SIM_CELL, cell_config, keep_reading, start_sim_cell, stop
 from test_service_handshake import Line, _record_status_writes, _sync
 
 from monoguide.daemon.journal import Journal
-from monoguide.drivers.errors import PlcTriggerDropped
+from monoguide.drivers.errors import DeviceDisconnected, PlcTriggerDropped, RobotOffsetUnconfirmed
 from monoguide.drivers.plc_registers import Control, Status
 from monoguide.drivers.sim.plc import PlcServer
+from monoguide.drivers.sim.robot_truth import read_truth
+from monoguide.solver import frames
 
 ROBOT_HOST, PLC_HOST, PLC_PORT = "127.0.5.20", "127.0.5.21", 5020
 START_S = 60.0  # sim-cell and the service's devices on a shared machine
@@ -33,7 +35,7 @@ CYCLE_S = 60.0
 
 
 @pytest.fixture(scope="module")
-def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Path]]:
+def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
     """One sim-cell (robot with part supply, tracker; no PLC) for the module; its config and truth log."""
     tmp = tmp_path_factory.mktemp("service-cell")
     state, truth = tmp / "sim-state.json", tmp / "truth.jsonl"
@@ -42,16 +44,31 @@ def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Path]]:
                          extra="\n[service]\nimages_max_mb = 50.0\n")
     process, _ = start_sim_cell(config, "--no-plc", "--truth-log", str(truth), stdin=subprocess.PIPE,
                                 timeout_s=START_S)
+    keep_reading(process)
     try:
-        yield {"config": config, "truth": truth, "tmp": tmp}
+        yield {"config": config, "truth": truth, "tmp": tmp, "process": process,  # type: ignore[dict-item]
+               "robot_truth": state.with_name(state.stem + "-robot-truth.json")}
     finally:
         stop(process, 15.0)
 
 
+STARTED: list[int] = []  # the services this module started: none may outlive its test, pass or fail
+
+
+@pytest.fixture(autouse=True)
+def _no_service_left() -> Iterator[None]:
+    yield
+    while STARTED:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(STARTED.pop(), signal.SIGKILL)
+
+
 async def _run(config: Path, state_dir: Path, *options: str) -> asyncio.subprocess.Process:
-    return await asyncio.create_subprocess_exec(
+    process = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "monoguide.daemon.cli", "run", "--config", str(config), "--state-dir", str(state_dir),
         *options, stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.PIPE)
+    STARTED.append(process.pid)
+    return process
 
 
 async def _exit(process: asyncio.subprocess.Process, timeout_s: float = 20.0) -> tuple[int, str]:
@@ -145,7 +162,8 @@ async def test_kill_9_then_restart_clears_the_stale_done_and_keeps_the_journal(c
         status_writes = _record_status_writes(line.server)
         service = await _run(cell["config"], state_dir)
         await line.wait(lambda s: Status.READY in s, "READY after the restart", START_S)
-        assert status_writes[:2] == [0, int(Status.READY)]  # 0 first, READY once the devices connect
+        ready = status_writes.index(int(Status.READY))  # 0 (rewritten each second) until READY: never a stale DONE
+        assert ready > 0 and set(status_writes[:ready]) == {0}, status_writes
         assert (await line.outputs()).result.cycle_counter == 1  # from the journal
         shown = await asyncio.to_thread(subprocess.run, [sys.executable, "-m", "monoguide.daemon.cli", "status",
                                                          "--state-dir", str(state_dir), "--json"],
@@ -173,6 +191,87 @@ async def test_kill_9_then_restart_clears_the_stale_done_and_keeps_the_journal(c
         assert [(r.number, r.part_tag) for r in journal.last_cycles(5)] == [(2, 203), (1, 201)]
 
 
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP], ids=lambda s: s.name)
+@_sync
+async def test_every_stop_signal_ends_the_service_cleanly(cell: dict[str, Path], signum: signal.Signals) -> None:
+    state_dir = cell["tmp"] / f"state-{signum.name}"
+    async with _plc() as line:
+        service = await _run(cell["config"], state_dir)
+        await line.wait(lambda s: Status.READY in s, "READY", START_S)
+        service.send_signal(signum)
+        code, err = await _exit(service)
+        assert code == 0, err
+        assert "service: stopping (signal)" in err and "service: stopped" in err
+        assert await line.status() == Status(0)  # not READY from a stopped service
+    assert not (state_dir / "service.lock").read_text()  # released: the next service may start
+
+
+@_sync
+async def test_a_killed_service_leaves_ready_with_a_still_heartbeat_until_clear_status(cell: dict[str, Path]) -> None:
+    """SIGKILL: no clean-up runs. The PLC must judge the service by its heartbeat (register 12 stands still);
+    the unit's ExecStopPost= (`run --clear-status`) or the next start writes 0."""
+    state_dir = cell["tmp"] / "state-sigkill"
+    async with _plc() as line:
+        service = await _run(cell["config"], state_dir)
+        await line.wait(lambda s: Status.READY in s, "READY", START_S)
+        service.kill()
+        await _exit(service)
+        beat = (await line.outputs()).heartbeat
+        await asyncio.sleep(2.0)  # the documented window: 4 heartbeat periods
+        assert (await line.outputs()).heartbeat == beat  # a dead service's heartbeat stands still
+        assert Status.READY in await line.status()  # what register 10 alone would wrongly say
+        cleared = await _run(cell["config"], state_dir, "--clear-status")
+        code, err = await _exit(cleared)
+        assert code == 0, err
+        assert await line.status() == Status(0)
+
+
+@_sync
+async def test_a_second_service_on_the_same_state_dir_is_refused(cell: dict[str, Path]) -> None:
+    state_dir = cell["tmp"] / "state-two"
+    async with _plc() as line:
+        first = await _run(cell["config"], state_dir)
+        await line.wait(lambda s: Status.READY in s, "READY", START_S)
+        writes = _record_status_writes(line.server)
+        for options in ((), ("--clear-status",)):
+            second = await _run(cell["config"], state_dir, *options)
+            code, err = await _exit(second)
+            assert code == 1, err
+            assert "STATE_DIR_IN_USE" in err and f"PID {first.pid}" in err
+        await asyncio.sleep(1.5)
+        assert Status.READY in await line.status() and 0 not in writes  # the first one's READY stands
+        first.send_signal(signal.SIGTERM)
+        code, err = await _exit(first)
+        assert code == 0, err
+
+
+@_sync
+async def test_a_lost_robot_is_named_and_only_it_is_reconnected(cell: dict[str, Any]) -> None:
+    state_dir = cell["tmp"] / "state-lost-robot"
+    async with _plc() as line:
+        service = await _run(cell["config"], state_dir)
+        await line.wait(lambda s: Status.READY in s, "READY", START_S)
+        await _robot_fault(cell, "drop")  # the controller closes every connection at each request
+        await line.control(Control.TRIGGER, job=1, tag=600)
+        assert await line.wait(lambda s: Status.DONE in s, "DONE", CYCLE_S) == Status.DONE | Status.ERROR
+        assert (await line.outputs()).result.error_code == DeviceDisconnected.plc_code
+        await _robot_fault(cell, "none")
+        await line.acknowledge()
+        await line.wait(lambda s: Status.READY in s, "READY again", START_S)
+        service.send_signal(signal.SIGTERM)
+        code, err = await _exit(service)
+    assert code == 0, err
+    assert "robot lost (DEVICE_DISCONNECTED" in err and "camera lost" not in err, err[-3000:]
+    assert "camera: connected again" not in err  # the camera was never closed
+
+
+def test_an_empty_state_dir_is_a_usage_error(tmp_path: Path) -> None:
+    done = subprocess.run([sys.executable, "-m", "monoguide.daemon.cli", "run", "--config", str(SIM_CELL),
+                           "--state-dir", ""], capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert done.returncode == 2, done.stderr
+    assert "STATE_DIR_INVALID" in done.stderr and list(tmp_path.iterdir()) == []
+
+
 def test_a_config_error_exits_2_naming_the_key(tmp_path: Path) -> None:
     config = tmp_path / "cell.toml"
     config.write_text(SIM_CELL.read_text() + "\n[service]\nimages_max_mb = -5\n")
@@ -187,3 +286,97 @@ def test_a_config_error_exits_2_naming_the_key(tmp_path: Path) -> None:
                            "--state-dir", str(tmp_path / "state")], capture_output=True, text=True, timeout=60,
                           env={**os.environ, "STATE_DIRECTORY": str(tmp_path / "s")})
     assert done.returncode == 2 and "[plc]" in done.stderr, done.stderr
+    assert "CONFIG_MISSING_KEY" in done.stderr and "monoguide run" in done.stderr
+    text = re.sub(r"\[robot\].*?(?=\n\[)", "", SIM_CELL.read_text(), count=1, flags=re.S)
+    assert "[robot]" not in text
+    config.write_text(text)
+    done = subprocess.run([sys.executable, "-m", "monoguide.daemon.cli", "run", "--config", str(config),
+                           "--state-dir", str(tmp_path / "state")], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2, done.stderr
+    assert "CONFIG_MISSING_KEY" in done.stderr and "[robot]" in done.stderr and "monoguide run" in done.stderr
+    assert not (tmp_path / "state").exists()
+
+
+def _robot_truth(cell: dict[str, Any]) -> dict[str, Any]:
+    for _ in range(100):
+        with contextlib.suppress(OSError, ValueError):
+            return read_truth(cell["robot_truth"])
+    raise AssertionError("no robot truth file")
+
+
+async def _robot_fault(cell: dict[str, Any], command: str) -> None:
+    """A fault on sim-cell's standard input, waited for until the controller says it took it up."""
+    applied = int(_robot_truth(cell).get("commands_applied", 0))
+    cell["process"].stdin.write(f"robot {command}\n")
+    cell["process"].stdin.flush()
+    deadline = asyncio.get_running_loop().time() + 10.0
+    while int(_robot_truth(cell).get("commands_applied", 0)) <= applied:
+        assert asyncio.get_running_loop().time() < deadline, f"robot {command} not taken up"
+        await asyncio.sleep(0.01)
+
+
+@pytest.mark.slow
+@_sync
+async def test_a_controller_cut_at_every_millisecond_of_the_write_leaves_no_offset_unreported(
+        cell: dict[str, Any]) -> None:
+    """The cable pulled 0, 1, 2, ... 9 ms after the offset reached the controller (which takes it on its own
+    schedule), back at once or after a second: whatever the PLC is told, the robot's truth agrees — RESULT_OK only
+    with the offset the robot holds, ERROR only when it holds nothing from the cycle, FAULT 429 until monoguide has
+    settled it, and afterwards the robot holds no offset the PLC was not told RESULT_OK about."""
+    state_dir = cell["tmp"] / "state-cut"
+    seen: dict[str, int] = {}
+    reported_ok: set[int] = set()  # the sequence numbers of offsets the PLC was told RESULT_OK about
+
+    def holds_only_what_the_plc_was_told(when: str) -> None:
+        truth = _robot_truth(cell)
+        assert not truth["offset_valid"] or truth["held_sequence"] in reported_ok, (when, truth["held_sequence"],
+                                                                                     sorted(reported_ok))
+
+    async with _plc() as line:
+        service = await _run(cell["config"], state_dir)
+        for ms in range(10):
+            down_s = 0.05 if ms % 2 == 0 else 1.0  # back at once (as a cable blip), or after a second
+            await line.wait(lambda s: Status.READY in s, "READY", START_S)
+            await _robot_fault(cell, f"cut-after-offset {ms} {down_s}")
+            await line.control(Control.TRIGGER, job=1, tag=500 + ms)
+            await line.wait(lambda s: Status.BUSY in s, "BUSY")
+            status = await line.wait(lambda s: bool(s & (Status.DONE | Status.FAULT)), "DONE or FAULT", CYCLE_S)
+            out = (await line.outputs()).result
+            with Journal(state_dir) as journal:
+                intent = journal.intent(journal.cycle_counter())
+            if status == Status.DONE | Status.RESULT_OK:
+                seen["RESULT_OK"] = seen.get("RESULT_OK", 0) + 1
+                assert intent is not None and intent.outcome == "acknowledged"
+                held = [o for o in _robot_truth(cell)["offsets"] if o["sequence"] == intent.sequence]
+                assert held, (ms, intent.sequence)  # the robot received exactly the offset the PLC reads
+                np.testing.assert_allclose(out.offset, frames.T_to_kuka_frame(np.array(held[0]["D_b"])), atol=1e-3)
+                reported_ok.add(intent.sequence)
+                await line.acknowledge()
+            elif status == Status.DONE | Status.ERROR:
+                seen[str(out.error_code)] = seen.get(str(out.error_code), 0) + 1
+                assert out.offset == (0.0,) * 6
+                if intent is not None:  # sent, then settled at once: this cycle's offset is not held
+                    assert intent.outcome in ("held", "not_held") and intent.cleared, (ms, intent)
+                await line.acknowledge()
+            else:
+                assert Status.FAULT in status and out.error_code == RobotOffsetUnconfirmed.plc_code, (ms, out)
+                seen["429"] = seen.get("429", 0) + 1
+                assert out.offset == (0.0,) * 6 and out.part_tag == 500 + ms
+                await line.control(0)
+                deadline = asyncio.get_running_loop().time() + 30.0
+                while Status.READY not in await line.status():  # FAULT_RESET is ignored until it is settled
+                    assert asyncio.get_running_loop().time() < deadline, "the unconfirmed offset was never settled"
+                    await line.control(Control.FAULT_RESET)
+                    await asyncio.sleep(0.1)
+                    await line.control(0)
+                    await asyncio.sleep(0.3)
+            holds_only_what_the_plc_was_told(f"after the cycle cut at {ms} ms: {status!r}")
+        service.send_signal(signal.SIGTERM)
+        code, err = await _exit(service)
+        assert code == 0, err
+    with Journal(state_dir) as journal:
+        intents = [journal.intent(n) for n in range(1, journal.cycle_counter() + 1)]
+    sent = [i for i in intents if i is not None]
+    assert sent and all(i.outcome is not None for i in sent), sent  # every offset sent is settled
+    assert "RESULT_OK" in seen and len(seen) >= 2, seen  # the sweep reached more than one outcome
+    print("outcomes of the sweep:", seen)

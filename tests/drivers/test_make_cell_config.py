@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import tomllib
 from pathlib import Path
 
 import cv2
@@ -29,11 +30,41 @@ SPEC = sim_cell_spec(CONFIG)
 
 
 def test_the_committed_config_is_what_the_generator_writes(tmp_path: Path) -> None:
-    assert CONFIG_PATH.read_text() == cell_config_toml(), (
-        "config/sim-cell.toml is stale: run python -m monoguide.drivers.sim.make_cell_config config/sim-cell.toml")
+    """Same keys, same texts, numbers within 1e-9: the matrices are printed to 12 decimals, whose last digit
+    depends on the numpy/BLAS build that computed them — never compare the last bit of a float."""
+    _assert_same_toml(tomllib.loads(CONFIG_PATH.read_text()), tomllib.loads(cell_config_toml()),
+                      "config/sim-cell.toml is stale: run python -m monoguide.drivers.sim.make_cell_config "
+                      "config/sim-cell.toml")
     out = tmp_path / "cell.toml"
     assert main([str(out)]) == 0
-    assert out.read_text() == CONFIG_PATH.read_text()
+    _assert_same_toml(tomllib.loads(out.read_text()), tomllib.loads(CONFIG_PATH.read_text()), "written file")
+
+
+def test_the_config_comparison_sees_a_changed_digit() -> None:
+    text = tomllib.loads(CONFIG_PATH.read_text())
+    moved = tomllib.loads(CONFIG_PATH.read_text())
+    moved["reference"]["T_cf_b"][0][3] += 1e-6  # a micrometre: a different cell
+    with pytest.raises(AssertionError, match=r"reference.T_cf_b\[0\]\[3\]"):
+        _assert_same_toml(text, moved, "")
+    nudged = tomllib.loads(CONFIG_PATH.read_text())
+    nudged["reference"]["T_cf_b"][0][3] += 1e-12  # below the printed precision: the same config
+    _assert_same_toml(text, nudged, "")
+
+
+def _assert_same_toml(a: object, b: object, why: str, where: str = "") -> None:
+    if isinstance(a, dict) and isinstance(b, dict):
+        assert a.keys() == b.keys(), f"{why}: keys differ at {where or 'top'}: {sorted(a.keys() ^ b.keys())}"
+        for key in a:
+            _assert_same_toml(a[key], b[key], why, f"{where}.{key}" if where else key)
+    elif isinstance(a, list) and isinstance(b, list):
+        assert len(a) == len(b), f"{why}: {where} has {len(a)} against {len(b)} entries"
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            _assert_same_toml(x, y, why, f"{where}[{i}]")
+    elif isinstance(a, float) or isinstance(b, float):
+        assert isinstance(a, int | float) and isinstance(b, int | float), f"{why}: {where}: {a!r} against {b!r}"
+        assert a == pytest.approx(b, abs=1e-9, rel=0), f"{why}: {where}: {a!r} against {b!r}"
+    else:
+        assert a == b, f"{why}: {where}: {a!r} against {b!r}"
 
 
 def test_the_simulated_parts_deviate_over_the_papers_range() -> None:

@@ -49,7 +49,7 @@ _addresses = itertools.count(150)
 
 
 def next_host() -> str:
-    return f"127.0.0.{next(_addresses)}"
+    return f"127.0.27.{next(_addresses)}"
 
 
 def run(coro_fn: Callable[..., Awaitable[Any]], *args: Any, limit_s: float = 10.0) -> Any:

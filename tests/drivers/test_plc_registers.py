@@ -17,12 +17,15 @@ from monoguide.drivers.errors import (
 from monoguide.drivers.plc import HeartbeatWatch, offset_registers
 from monoguide.drivers.plc_registers import (
     BLOCK_SIZE,
+    CYCLE_COUNTER,
+    ERROR_CODE,
     STATUS,
     Control,
     CycleResult,
     PlcInputs,
     Status,
     check_job,
+    cycle_counter_word,
     decode_inputs,
     decode_outputs,
     encode_inputs,
@@ -94,6 +97,21 @@ def test_uint16_and_int16() -> None:
     with pytest.raises(DeviceRequestInvalid):
         int16_word(32768, 11)
     assert wrap_uint16(65536) == 0 and wrap_uint16(65535 + 3) == 2
+
+
+@pytest.mark.parametrize(("number", "register"), [(0, 0), (65_535, 65_535), (65_536, 0), (65_537, 1),
+                                                   (300_000, 300_000 - 4 * 65_536), (2**31 + 5, 5), (2**40 + 7, 7)])
+def test_register_13_is_the_cycle_number_modulo_65536(number: int, register: int) -> None:
+    assert cycle_counter_word(number) == register
+    words = encode_result(CycleResult(0, number, 1, 1), heartbeat=0)
+    assert words[CYCLE_COUNTER - ERROR_CODE] == register
+    assert decode_outputs([0, *words]).result.cycle_counter == register
+
+
+@pytest.mark.parametrize("bad", [-1, 1.5, True, None])
+def test_a_cycle_number_that_is_no_whole_number_is_refused(bad: object) -> None:
+    with pytest.raises(DeviceRequestInvalid, match=r"register 13 \(cycle counter\)"):
+        cycle_counter_word(bad)  # type: ignore[arg-type]
 
 
 def test_control_word_bits_and_inputs() -> None:

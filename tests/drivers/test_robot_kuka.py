@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import itertools
 import socket
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -46,7 +45,7 @@ def spec(cell: SimCell, tmp_path: Path) -> Path:
 
 
 def start(spec: Path, fault: str = "none") -> ControllerProcess:
-    return start_controller("kuka", spec, spec.with_name("truth.json"), f"127.0.0.{next(_addresses)}",
+    return start_controller("kuka", spec, spec.with_name("truth.json"), f"127.0.26.{next(_addresses)}",
                             move_time_s=0.15, fault=fault)
 
 
@@ -70,7 +69,8 @@ def test_identity_status_and_the_port(robot: KukaRobot, controller: ControllerPr
     assert isinstance(robot, Robot)
     assert robot.identity is not None and robot.identity.vendor == "KUKA" and robot.identity.software == "KSS 8.6"
     status = robot.status()
-    assert status.ready and status.mode == "AUT" and status.in_position == 1
+    assert status.ready and status.mode == "AUT" and status.in_position == 0  # the program has not moved yet
+    assert (status.held_sequence, status.offset_valid) == (0, False)  # it holds no offset at its start
     np.testing.assert_allclose(status.T_b_f, np.array(truth(controller)["T_b_f"]), atol=1e-9)
 
 
@@ -88,24 +88,28 @@ def test_offset_arrives_as_one_frame_in_mm_and_abc_degrees(robot: KukaRobot, con
     turn = make_T(rotvec_to_matrix(np.radians([0.0, 0.0, 0.01])), np.zeros(3))  # 0.01 deg about base z
     D_off = compose(turn, D_ideal)
     s1, s2 = robot.write_base_offset(D_ideal), robot.write_base_offset(D_off)
-    offsets = offsets_recorded(controller, [s1, s2], 5, D_ideal)
-    assert tuple(offsets[0]["received"]) == T_to_kuka_frame(D_ideal)  # exactly what was sent: mm, deg
+    offsets = offsets_recorded(controller, [s1, s2], 5, D_ideal, "kuka")
+    # what was sent, as six-decimal fixed-point text: mm, deg
+    np.testing.assert_allclose(offsets[0]["received"], T_to_kuka_frame(D_ideal), rtol=0, atol=5e-7)
     x, y, z, a, b, c = offsets[0]["received"]  # by scipy: A B C intrinsic Z-Y'-X'' in degrees
     np.testing.assert_allclose(Rotation.from_euler("ZYX", [a, b, c], degrees=True).as_matrix(), D_ideal[:3, :3],
-                               rtol=0, atol=1e-12)
-    np.testing.assert_allclose([x, y, z], D_ideal[:3, 3], rtol=0, atol=1e-9)
-    assert offsets[1]["grasp_error_deg"] == pytest.approx(0.01, abs=1e-9)
+                               rtol=0, atol=2e-8)
+    np.testing.assert_allclose([x, y, z], D_ideal[:3, 3], rtol=0, atol=5e-7)
+    assert offsets[1]["grasp_error_deg"] == pytest.approx(0.01, abs=2e-6)
     T_b_g = compose(D_off, cell.T_b_g0())
     T_b_g_ideal = compose(D_ideal, cell.T_b_g0())
-    assert offsets[1]["grasp_error_mm"] == pytest.approx(np.linalg.norm(T_b_g[:3, 3] - T_b_g_ideal[:3, 3]), abs=1e-9)
+    assert offsets[1]["grasp_error_mm"] == pytest.approx(np.linalg.norm(T_b_g[:3, 3] - T_b_g_ideal[:3, 3]), abs=5e-5)
 
 
-def test_hostile_client_messages_do_not_hurt_the_controller(robot: KukaRobot, controller: ControllerProcess) -> None:
+def test_hostile_client_messages_do_not_hurt_the_controller(cell: SimCell, controller: ControllerProcess) -> None:
+    # EKI serves one client: the hostile one first, then (once the program has reopened the channel) the daemon
     bomb = b'<!DOCTYPE r [<!ENTITY a "aaaaaaaaaa"><!ENTITY b "&a;&a;&a;&a;&a;&a;">]><Sensor>&b;</Sensor>'
     with socket.create_connection((controller.host, controller.port), timeout=2.0) as s:
         s.sendall(bomb + b"<Sensor><Request Seq='x'/></Sensor>" + b"<" * 5000)
-        time.sleep(0.2)
-    assert robot.move_to_measuring_pose(1).in_position == 2  # still serving, nothing obeyed
+        s.recv(4096)  # its first report: the controller took the connection and read what came
+    with make_robot(cell, controller) as robot:
+        assert robot.move_to_measuring_pose(1).in_position == 2  # still serving, nothing obeyed
+    assert truth(controller)["offsets"] == [] and truth(controller)["ack_sequence"] != 0
 
 
 def test_unknown_pose_and_pose_mismatch(cell: SimCell, controller: ControllerProcess) -> None:
@@ -121,7 +125,7 @@ def test_unknown_pose_and_pose_mismatch(cell: SimCell, controller: ControllerPro
 
 def test_absent_controller_is_device_not_found(cell: SimCell) -> None:
     with pytest.raises(DeviceNotFound):
-        KukaRobot(f"127.0.0.{next(_addresses)}", connect_timeout_s=0.5).open()
+        KukaRobot(f"127.0.26.{next(_addresses)}", connect_timeout_s=0.5).open()
 
 
 def test_reconnects_after_the_controller_restarted(spec: Path, cell: SimCell) -> None:
@@ -149,6 +153,5 @@ def test_an_offset_that_is_not_a_rigid_transform_is_never_sent(robot: KukaRobot,
     sheared[0, 1] = 0.01
     with pytest.raises(NotARotation, match="base offset"):
         robot.write_base_offset(sheared)
-    time.sleep(0.1)
-    assert truth(controller)["offsets"] == []
-    assert robot.status().ack_sequence == 0  # nothing was requested
+    robot.move_to_measuring_pose(0)  # a request after it: had the offset gone out, it would be answered before
+    assert truth(controller)["offsets"] == [] and truth(controller)["held_sequence"] == 0

@@ -72,7 +72,7 @@ def test_probe_robot_goto_and_write_zero(sim_cell: tuple[Path, Path, str]) -> No
                                  "--goto", "2", "--write-zero"])
     assert result.exit_code == 0, result.output
     vendor = "Universal Robots" if backend == "sim-ur" else "KUKA"
-    assert f"robot: {vendor}" in result.output and "ready, at S1" in result.output
+    assert f"robot: {vendor}" in result.output and "ready, at no measuring pose" in result.output
     assert "in position at S2" in result.output and "zero offset written" in result.output
     truth_file = Path(json.loads(state.read_text())["robot"]["truth"])
     deadline = time.monotonic() + 2.0

@@ -64,10 +64,11 @@ def test_kuka_offset_message_is_millimetres_and_abc_degrees_z_y_x(rotation: Rota
     offset = ET.fromstring(message).find("Offset")  # the XML by hand (stdlib parser, not the adapter's)
     assert offset is not None
     x, y, z, a, b, c = (float(offset.get(k)) for k in "XYZABC")  # type: ignore[arg-type]
-    np.testing.assert_allclose([x, y, z], D[:3, 3], rtol=0, atol=1e-9)  # millimetres
+    # six decimals of fixed-point text: 5e-7 mm, 5e-7 deg (a rotation matrix then within ~1e-8)
+    np.testing.assert_allclose([x, y, z], D[:3, 3], rtol=0, atol=5e-7)  # millimetres
     assert max(abs(a), abs(b), abs(c)) <= 180.0  # degrees
     R = Rotation.from_euler("ZYX", [a, b, c], degrees=True).as_matrix()  # R = Rz(A) Ry(B) Rx(C)
-    np.testing.assert_allclose(R, D[:3, :3], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(R, D[:3, :3], rtol=0, atol=3e-8)
 
 
 @pytest.mark.parametrize("rotation", ROTATIONS, ids=IDS)
@@ -76,5 +77,5 @@ def test_kuka_reported_flange_pose_is_millimetres_and_abc_degrees_z_y_x(rotation
     position_mm = RNG.uniform(-2500.0, 2500.0, 3)
     report = kuka.KukaReport("AUT", "NORMAL", True, (*position_mm, a, b, c), 1, 1, 0, 1000)
     status = report_to_status(kuka.decode_report(kuka.encode_report(report)))
-    np.testing.assert_allclose(status.T_b_f[:3, 3], position_mm, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(status.T_b_f[:3, :3], rotation.as_matrix(), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(status.T_b_f[:3, 3], position_mm, rtol=0, atol=1e-9)  # nine decimals
+    np.testing.assert_allclose(status.T_b_f[:3, :3], rotation.as_matrix(), rtol=0, atol=3e-11)

@@ -52,7 +52,7 @@ _addresses = itertools.count(50)
 
 
 def next_host() -> str:
-    return f"127.0.0.{next(_addresses)}"
+    return f"127.0.25.{next(_addresses)}"
 
 
 @pytest.fixture(scope="module")
@@ -110,7 +110,7 @@ os._exit(0)
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=30).stdout
     lines = {line.split()[0]: line.split()[1:] for line in out.splitlines() if line[:1].isupper() and " " in line}
     assert "no_such_variable" in " ".join(lines["REFUSED"])
-    assert lines["MODES"] == ["7", "1", "1"]  # RUNNING, NORMAL, in position at S1
+    assert lines["MODES"] == ["7", "1", "0"]  # RUNNING, NORMAL, not yet in position (the program has not moved)
     expected = T_to_ur_pose(np.array(truth(controller)["T_b_f"]))
     np.testing.assert_allclose([float(v) for v in lines["POSE"]], expected, atol=1e-12)
 
@@ -122,7 +122,8 @@ def test_robot_satisfies_the_port(robot: UrRobot) -> None:
 
 def test_status_is_the_simulated_flange_pose_in_mm(robot: UrRobot, controller: ControllerProcess) -> None:
     status = robot.status()
-    assert status.ready and status.mode == "RUNNING" and status.safety == "NORMAL" and status.in_position == 1
+    assert status.ready and status.mode == "RUNNING" and status.safety == "NORMAL" and status.in_position == 0
+    assert (status.held_sequence, status.offset_valid) == (0, False)  # it holds no offset at its start
     np.testing.assert_allclose(status.T_b_f, np.array(truth(controller)["T_b_f"]), atol=1e-9)
 
 

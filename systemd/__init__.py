@@ -1,0 +1,4 @@
+"""Shipped files, not code: the systemd unit of `monoguide run` and its install notes.
+
+Read them with :mod:`monoguide.daemon.packaged`.
+"""
