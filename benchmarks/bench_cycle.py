@@ -2,7 +2,7 @@
 
 Starts ``monoguide sim-cell --no-plc --truth-log`` on the cell config (its robot on 127.0.4.200, its state
 file in a temporary folder), builds the camera and the robot as the service does (daemon/assembly.py) and
-runs N cycles of daemon/cycle.py: measure (robot motion, exposure = grab, hole finding in a worker thread
+runs N cycles of daemon/cycle/_runner.py: measure (robot motion, exposure = grab, hole finding in a worker thread
 overlapping the next move), solve (with one perspective-correction iteration), check, write (the offset
 acknowledged by the simulated controller). For each stage the median, min and max over the cycles, and the
 overhead (the last frame in hand -> the offset acknowledged); then the grasp error from the truth log.
@@ -36,10 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
-from monoguide.daemon import cycle as cycle_module
 from monoguide.daemon.assembly import build_camera, build_robot
-from monoguide.daemon.config import load_cell_config
-from monoguide.daemon.cycle import CycleAborted, CycleRunner
+from monoguide.daemon.config._cell import load_cell_config
+from monoguide.daemon.cycle import _runner as cycle_module
+from monoguide.daemon.cycle._runner import CycleAborted, CycleRunner
 from monoguide.drivers import robot as robot_module
 from monoguide.solver import holes
 

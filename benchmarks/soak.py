@@ -1,6 +1,6 @@
 """Soak test of the service (issue 11): ``monoguide simulate``'s run for many cycles, watching the service.
 
-Runs the simulated cell and ``monoguide run`` as on a line (``daemon/simulate_run.py``) and samples the
+Runs the simulated cell and ``monoguide run`` as on a line (``daemon/simulate/_run.py``) and samples the
 service process from ``/proc`` after every cycle: resident memory, threads, open file descriptors. Prints
 a table at every tenth of the run and the verdict against the targets: resident memory at most 300 MB and
 flat (the last quarter's mean within 5 % of the first quarter's, after the first 5 % of warm-up), no
@@ -26,7 +26,7 @@ from typing import Any
 
 from bench_cycle import HOST, cheaper_config
 
-from monoguide.daemon.simulate_run import Progress, RunOptions, run_simulation
+from monoguide.daemon.simulate._run import Progress, RunOptions, run_simulation
 
 RSS_LIMIT_MB = 300.0
 FLAT_TOLERANCE = 0.05

@@ -1,7 +1,7 @@
 """The simulated person at the cell for ``monoguide calibrate --sim``: does what the wizard asks, on the truth.
 
 :class:`SimOperator` answers the wizard's operator protocol (``ask(action, instruction, **detail)``, the actions
-of ``daemon/calibrate_rig.py``; structural, so the simulator does not import the daemon) by changing the
+of ``daemon/calibrate/_rig.py``; structural, so the simulator does not import the daemon) by changing the
 simulated cell's :class:`~monoguide.drivers.sim.cell.SimScene`, which the in-process simulated camera renders,
 and by rewriting the simulated tracker's targets file (the tracker process re-reads it), so that the tracker
 measures the nests where the scene has them:

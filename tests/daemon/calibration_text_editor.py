@@ -1,5 +1,5 @@
 """The calibration file's text-level editor as monoguide had it before ``tomlkit``: the reference the document
-writer (``daemon/calibration_file.py``) is compared with on the committed configs.
+writer (``daemon/calibrate/_file.py``) is compared with on the committed configs.
 
 It edits the TEXT by offsets: a calibrated key's value is spliced in place (a comment after a matrix's opening
 bracket kept), a key the file lacks is added after the last entry of its table, the ``[calibration]`` tables are
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from monoguide.daemon.calibration_file import CalibrationFileUneditable
+from monoguide.daemon.calibrate._file import CalibrationFileUneditable
 from monoguide.drivers.toml_format import MATRIX_DECIMALS
 
 

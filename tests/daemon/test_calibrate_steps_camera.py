@@ -1,4 +1,4 @@
-"""Steps 4-7 of the calibration wizard (daemon/calibrate_steps_camera.py) against the simulated devices: the
+"""Steps 4-7 of the calibration wizard (daemon/calibrate/_steps_camera.py) against the simulated devices: the
 simulated tracker process (the real serial adapter over its pty), the simulated UR controller process (the real
 UR adapter), a simulated camera that stands where that robot stands and sees the part or a placed target.
 The operator acts on the simulated cell's truth. Results are checked against that truth; small counts keep it
@@ -17,7 +17,7 @@ import pytest
 from simcell_helpers import start_sim_tracker, stop
 
 from monoguide.daemon.assembly import build_sim_cell
-from monoguide.daemon.calibrate_rig import (
+from monoguide.daemon.calibrate._rig import (
     PLACE_PART,
     PLACE_SMR,
     PLACE_TARGET,
@@ -25,8 +25,8 @@ from monoguide.daemon.calibrate_rig import (
     CalibrationOptions,
     CalibrationRig,
 )
-from monoguide.daemon.calibrate_steps_camera import run_accuracy, run_part, run_sfi, run_verify
-from monoguide.daemon.config import CellConfig, load_cell_config
+from monoguide.daemon.calibrate._steps_camera import run_accuracy, run_part, run_sfi, run_verify
+from monoguide.daemon.config._cell import CellConfig, load_cell_config
 from monoguide.drivers.camera import Frame
 from monoguide.drivers.sim.camera import SimCamera
 from monoguide.drivers.sim.cell import SimCell, deviated_part

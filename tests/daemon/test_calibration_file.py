@@ -1,4 +1,4 @@
-"""``daemon/calibration_file.py``: the wizard's values written into a copy of a cell config, in place.
+"""``daemon/calibrate/_file.py``: the wizard's values written into a copy of a cell config, in place.
 
 Seeded perturbations of the committed configs' values are the ground truth: the rewritten file must load them
 back (to 1e-9), keep every other line, comment and the simulated truth, keep the previous file and name it, and
@@ -21,8 +21,7 @@ import pytest
 import tomlkit
 from calibration_text_editor import edit_calibration_text
 
-from monoguide.daemon.calibrate_session import open_session
-from monoguide.daemon.calibration_file import (
+from monoguide.daemon.calibrate._file import (
     CalibrationFileError,
     CalibrationFileRefused,
     CalibrationFileUneditable,
@@ -32,8 +31,9 @@ from monoguide.daemon.calibration_file import (
     read_calibration_provenance,
     write_calibration,
 )
-from monoguide.daemon.cmd_calibrate import write_results
-from monoguide.daemon.config import load_cell_config
+from monoguide.daemon.calibrate._session import open_session
+from monoguide.daemon.cli.calibrate import write_results
+from monoguide.daemon.config._cell import load_cell_config
 from monoguide.drivers import atomic_file
 from monoguide.solver.frames import make_T, rotvec_to_matrix
 

@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from monoguide.daemon.calibrate_rig import (
+from monoguide.daemon.calibrate._rig import (
     ACTIONS,
     MOUNT_FLANGE_SMR,
     PLACE_SMR,
@@ -33,15 +33,15 @@ from monoguide.daemon.calibrate_rig import (
     CalibrationRig,
     ConsoleOperator,
 )
-from monoguide.daemon.calibrate_session import (
+from monoguide.daemon.calibrate._session import (
     SESSION_FILE,
     CalibrationSession,
     CalibrationSessionInvalid,
     open_session,
 )
 from monoguide.daemon.cli import app
-from monoguide.daemon.cmd_calibrate import EXIT_INTERRUPTED, EXIT_OK, EXIT_REFUSED, plan_steps, run_steps
-from monoguide.daemon.config import CellConfig, CellFrameConfig, load_cell_config
+from monoguide.daemon.cli.calibrate import EXIT_INTERRUPTED, EXIT_OK, EXIT_REFUSED, plan_steps, run_steps
+from monoguide.daemon.config._cell import CellConfig, CellFrameConfig, load_cell_config
 from monoguide.drivers.camera import CameraIdentity, CameraSettings, Frame
 from monoguide.drivers.robot import RobotIdentity, RobotStatus
 from monoguide.drivers.sim.cell import TARGETS_FORMAT

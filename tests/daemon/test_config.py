@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from monoguide.daemon.config import (
+from monoguide.daemon.config._cell import (
     ConfigMissingKey,
     ConfigUnknownKey,
     ConfigUnknownSection,

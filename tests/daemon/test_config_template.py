@@ -1,6 +1,6 @@
 """config/cell-template.toml: it loads with the real loader, and it holds (and comments) every key the loader asks
 for. The key list is the loader's own: every :class:`ConfigTable` the loader creates records which keys its getters
-asked for, so a key someone adds to ``daemon/config.py`` without adding it to the template fails here."""
+asked for, so a key someone adds to ``daemon/config/_cell.py`` without adding it to the template fails here."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ from typing import Any
 
 import pytest
 
-from monoguide.daemon import config_reader
-from monoguide.daemon.config import OPTIONAL_SECTIONS, REQUIRED_SECTIONS, load_cell_config
+from monoguide.daemon.config import _reader as config_reader
+from monoguide.daemon.config._cell import OPTIONAL_SECTIONS, REQUIRED_SECTIONS, load_cell_config
 
 TEMPLATE = Path(__file__).parents[2] / "config" / "cell-template.toml"
 NOT_IN_TEMPLATE = {"sim"}  # the simulated cell's own section (config/sim-cell.toml)

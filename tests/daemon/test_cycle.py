@@ -1,6 +1,7 @@
-"""The blocking cycle (daemon/cycle.py) end to end: a real ``monoguide sim-cell`` (its simulated UR controller in
-its own process, with the part supply and the truth log), the robot adapter over RTDE, the simulated camera in
-this process following that robot. Offsets are judged against the truth log the controller writes."""
+"""The blocking cycle (daemon/cycle/_runner.py) end to end: a real ``monoguide sim-cell`` (its simulated
+UR controller in its own process, with the part supply and the truth log), the robot adapter over RTDE, the
+simulated camera in this process following that robot. Offsets are judged against the truth log the controller
+writes."""
 
 from __future__ import annotations
 
@@ -17,8 +18,8 @@ import pytest
 from simcell_helpers import cell_config, start_sim_cell, stop
 
 from monoguide.daemon.assembly import build_camera, build_robot
-from monoguide.daemon.config import CellConfig, ChecksConfig, load_cell_config
-from monoguide.daemon.cycle import CapturePoseMismatch, CycleAborted, CycleRunner
+from monoguide.daemon.config._cell import CellConfig, ChecksConfig, load_cell_config
+from monoguide.daemon.cycle._runner import CapturePoseMismatch, CycleAborted, CycleRunner
 from monoguide.drivers.camera import Camera
 from monoguide.drivers.errors import PlcUnknownJob
 from monoguide.drivers.robot import Robot

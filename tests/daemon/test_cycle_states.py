@@ -7,7 +7,7 @@ import logging
 
 import pytest
 
-from monoguide.daemon.cycle_states import (
+from monoguide.daemon.cycle._states import (
     ERROR_CAUSES,
     TRANSITIONS,
     Cause,
@@ -92,7 +92,7 @@ def test_every_state_is_reachable_and_none_but_stopped_is_a_dead_end() -> None:
 
 def test_a_good_cycle_logs_each_transition_with_its_cause(caplog: pytest.LogCaptureFixture) -> None:
     machine = CycleStateMachine()
-    caplog.set_level(logging.INFO, logger="monoguide.daemon.cycle_states")
+    caplog.set_level(logging.INFO, logger="monoguide.daemon.cycle._states")
     for cause in (C.DEVICES_CONNECTED, C.TRIGGER, C.VIEWS_MEASURED, C.POSE_SOLVED, C.CHECKS_PASSED,
                   C.OFFSET_ACKNOWLEDGED, C.REPORTED, C.RESULT_ACKNOWLEDGED):
         machine.fire(cause, detail="job 1 tag 77" if cause is C.TRIGGER else "")

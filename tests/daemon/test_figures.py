@@ -19,7 +19,7 @@ from PIL import Image
 from monoguide.daemon.figures import DPI, bar_chart, draw_style, label_points, new_figure, outline, save_png
 
 ROOT = Path(__file__).parents[2]
-DRAWING_MODULES = ("figures", "simulate_report", "calibration_report", "plan_drawing", "cmd_plan")
+DRAWING_MODULES = ("figures", "simulate._report", "calibrate._report", "plan._drawing", "cli.plan")
 
 
 def test_importing_the_drawing_modules_does_not_load_matplotlib() -> None:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from monoguide.daemon.journal import (
+from monoguide.daemon.service._journal import (
     CycleEntry,
     Journal,
     JournalEntryInvalid,
@@ -32,7 +32,7 @@ EXAMPLE_RECORD = Path(__file__).parents[2] / "examples" / "example-record.json"
 # without trusting anything the child (or the journal) says. Shared verbatim with the child process.
 EXPECTED_CYCLE = textwrap.dedent("""
     def expected_entry(n, record):
-        from monoguide.daemon.journal import CycleEntry
+        from monoguide.daemon.service._journal import CycleEntry
         from monoguide.drivers.errors import DeviceTimeout
         record = dict(record, id=f"part-{n}")
         failed = n % 5 == 0
@@ -52,7 +52,7 @@ expected_entry = namespace["expected_entry"]
 
 WRITER = EXPECTED_CYCLE + textwrap.dedent("""
     import json, sys
-    from monoguide.daemon.journal import Journal
+    from monoguide.daemon.service._journal import Journal
     record = json.load(open(sys.argv[2]))
     journal = Journal(sys.argv[1])
     while True:
@@ -285,7 +285,7 @@ def test_an_intent_is_committed_before_and_settled_with_its_cycle(tmp_path: Path
 
 def test_a_version_1_journal_is_upgraded_in_place_and_keeps_its_rows(tmp_path: Path) -> None:
     db = sqlite3.connect(tmp_path / "journal.sqlite3")
-    from monoguide.daemon import journal as journal_module
+    from monoguide.daemon.service import _journal as journal_module
 
     db.executescript(f"BEGIN; {journal_module._SCHEMA} PRAGMA application_id = {journal_module.APPLICATION_ID};"
                      " PRAGMA user_version = 1; COMMIT;")
@@ -338,7 +338,7 @@ def test_a_journal_deleted_or_replaced_under_the_writer_refuses_every_commit(tmp
 
 def test_the_queries_a_long_journal_runs_between_and_after_cycles_never_scan_the_table(tmp_path: Path) -> None:
     """Their cost stays flat as the journal grows (benchmarks/bench_journal.py measures it)."""
-    from monoguide.daemon import journal as journal_module
+    from monoguide.daemon.service import _journal as journal_module
 
     with Journal(tmp_path) as journal:
         journal.commit_cycle(expected_entry(1, _record()))

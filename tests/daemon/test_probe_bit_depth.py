@@ -10,7 +10,7 @@ from PIL import Image
 from typer.testing import CliRunner
 
 from monoguide.daemon.cli import app
-from monoguide.daemon.cmd_probe import _significant_bits, png_with_significant_bits
+from monoguide.daemon.cli.probe import _significant_bits, png_with_significant_bits
 from monoguide.drivers.sim.hole_renderer import HoleSpec, RenderSettings, render_view
 from monoguide.solver import frames
 from monoguide.solver.camera import PAPER_CAMERA

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from monoguide.daemon.sd_notify import Notifier, NotifySocketInvalid, watchdog_interval_s
+from monoguide.daemon.service._sd_notify import Notifier, NotifySocketInvalid, watchdog_interval_s
 
 
 @pytest.fixture

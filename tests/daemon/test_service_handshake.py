@@ -21,12 +21,12 @@ from typing import Any
 import numpy as np
 import pytest
 
-from monoguide.daemon.config import load_cell_config
-from monoguide.daemon.cycle import CycleAborted
-from monoguide.daemon.journal import Journal
-from monoguide.daemon.service import run_service
-from monoguide.daemon.service_devices import CellDevices, DeviceSlot
-from monoguide.daemon.service_status import liveness, read_status
+from monoguide.daemon.config._cell import load_cell_config
+from monoguide.daemon.cycle._runner import CycleAborted
+from monoguide.daemon.service._devices import CellDevices, DeviceSlot
+from monoguide.daemon.service._journal import Journal
+from monoguide.daemon.service._loop import run_service
+from monoguide.daemon.service._status import liveness, read_status
 from monoguide.drivers.errors import (
     DeviceDisconnected,
     DeviceNotFound,

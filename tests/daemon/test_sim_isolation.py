@@ -54,7 +54,7 @@ def test_the_unchanged_copy_keeps_every_contract(tree_copy: Path) -> None:
         ("drivers/camera.py", "monoguide.drivers.camera"),
         ("drivers/__init__.py", "monoguide.drivers"),  # the drivers package itself
         ("daemon/planted_cmd.py", "monoguide.daemon.planted_cmd"),
-        ("daemon/cmd_probe.py", "monoguide.daemon.cmd_probe"),
+        ("daemon/cli/probe.py", "monoguide.daemon.cli.probe"),
         ("solver/pose.py", "monoguide.solver.pose"),
     ],
 )
@@ -73,11 +73,11 @@ def test_the_contract_catches_any_module_importing_the_simulator(tree_copy: Path
 
 def test_an_indirect_import_through_a_driver_is_caught(tree_copy: Path) -> None:
     (tree_copy / "monoguide" / "drivers" / "planted_bridge.py").write_text(SIM_IMPORT)
-    probe = tree_copy / "monoguide" / "daemon" / "cmd_probe.py"
+    probe = tree_copy / "monoguide" / "daemon" / "cli" / "probe.py"
     probe.write_text(probe.read_text() + "from monoguide.drivers import planted_bridge  # noqa\n")
     result = lint_imports(tree_copy)
     assert result.returncode == 1 and f"{CONTRACT} BROKEN" in result.stdout
-    assert "monoguide.daemon.cmd_probe -> monoguide.drivers.planted_bridge" in result.stdout, result.stdout
+    assert "monoguide.daemon.cli.probe -> monoguide.drivers.planted_bridge" in result.stdout, result.stdout
 
 
 def test_the_assembly_point_alone_may_import_it(tree_copy: Path) -> None:

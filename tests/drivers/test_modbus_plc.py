@@ -20,7 +20,7 @@ from typing import Any
 
 import pytest
 
-from monoguide.daemon.config import ConfigError, ConfigMissingKey, load_cell_config
+from monoguide.daemon.config._cell import ConfigError, ConfigMissingKey, load_cell_config
 from monoguide.drivers.errors import (
     DeviceDisconnected,
     DeviceProtocolError,

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from monoguide.daemon.cmd_simcell import FAULT_COMMANDS, ROBOT_ACTIONS
+from monoguide.daemon.cli.simcell import FAULT_COMMANDS, ROBOT_ACTIONS
 from monoguide.drivers.sim.robot_motion import CUT_DOWN_S, FAULT_ACTIONS, FAULT_MODES, FaultCommand, parse_fault
 
 SIM_CELL = Path(__file__).parents[2] / "config" / "sim-cell.toml"

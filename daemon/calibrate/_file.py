@@ -1,0 +1,385 @@
+"""Write the wizard's calibrated values into the cell config, in place, keeping everything else.
+
+:func:`write_calibration` edits the parsed document (``tomlkit``, which keeps a TOML file's comments, order and
+layout), not a re-serialised TOML: only the values of the calibrated keys change (``[camera.intrinsics]``,
+``[camera] T_f_c``, ``[reference] T_cf_b`` and ``T_cf_w0``, each ``[[measuring_poses]] T_cf_si``); every comment,
+every other key, the order and the layout stay as they were, whether a table is written with a header or
+inline. A calibrated key the file lacks (``T_cf_si`` of a pose given by ``T_b_f``) is added after the last value
+of its table. The ``[calibration]`` section (provenance: date, session, wizard version, devices, a residual
+summary per step and ``previous``) is replaced as a whole.
+
+Safety: the new text goes to a temporary file beside the config, is loaded with
+:func:`~monoguide.daemon.config._cell.load_cell_config` and checked to hold exactly the calibrated values; only then is
+the config copied to ``<stem>.<UTC timestamp>.previous.toml`` (the previous calibration, named in
+``[calibration] previous``) and the temporary file renamed over it
+(:func:`~monoguide.drivers.atomic_file.write_atomic`: atomic, and synced to disk). If the new file does not load,
+nothing is replaced or copied and :class:`CalibrationFileRefused` says why. docs/calibration.md,
+"The calibration file".
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import stat
+import tomllib
+from datetime import UTC, datetime
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tomlkit
+import tomlkit.exceptions
+from tomlkit.items import InlineTable, Item, Table
+
+from monoguide.daemon.config._cell import CALIBRATION_STEPS, INTRINSICS_KEYS, CellConfig, ConfigError, load_cell_config
+from monoguide.drivers.atomic_file import write_atomic
+from monoguide.drivers.toml_format import (
+    MATRIX_DECIMALS,
+    add_after_last_value,
+    commented,
+    inline_table,
+    matrix,
+    opening_comment,
+    replace_section,
+)
+from monoguide.solver.calibration.errors import CalibrationError
+from monoguide.solver.errors import MonoguideError
+from monoguide.solver.frames import check_transform, make_T, orthonormalize
+
+__all__ = [
+    "MATRIX_DECIMALS",
+    "PROVENANCE_KEYS",
+    "CalibrationFileError",
+    "CalibrationFileRefused",
+    "CalibrationFileUneditable",
+    "CalibrationValueInvalid",
+    "read_calibration_provenance",
+    "step_summary",
+    "write_calibration",
+]
+
+ROUND_TRIP_TOL = 1e-9  # what loads back must equal what was calibrated to this (MATRIX_DECIMALS: ~1e-12)
+# what the caller may give in ``provenance`` (``previous`` is the writer's own)
+PROVENANCE_KEYS = ("date", "session", "wizard_version", "sim", "devices")
+_TABLES = {"camera.intrinsics": ("camera", "intrinsics"), "camera": ("camera",), "reference": ("reference",),
+           "measuring_poses": ("measuring_poses",)}
+
+
+class CalibrationFileError(CalibrationError):
+    """The cell config could not be read, copied or written (the message has the OS's reason)."""
+
+    code = "CALIBRATION_FILE_FAILED"
+    plc_code = 725
+
+
+class CalibrationFileRefused(CalibrationFileError):
+    """The rewritten config would not load (or not hold the calibrated values): nothing was replaced."""
+
+    code = "CALIBRATION_FILE_REFUSED"
+    plc_code = 726
+
+
+class CalibrationValueInvalid(CalibrationFileError):
+    """A step's result or the provenance cannot be written: not a rigid 4x4, a missing coefficient, a measuring
+    pose the config does not have, an unknown provenance key."""
+
+    code = "CALIBRATION_VALUE_INVALID"
+    plc_code = 727
+
+
+class CalibrationFileUneditable(CalibrationFileError):
+    """The config is not a TOML file the calibration can be written into: not valid TOML (or not UTF-8), or a
+    calibrated key's table is missing or not a table (``camera = 5``); the message names it.
+
+    Tables written inline (``intrinsics = { ... }``) or out of order are edited like any other, so a file the
+    loader accepts is never uneditable: every table the calibration writes into is one it requires."""
+
+    code = "CALIBRATION_FILE_UNEDITABLE"
+    plc_code = 728
+
+
+# --- public --------------------------------------------------------------------------------------
+
+
+def write_calibration(config_path: Path, steps: dict[str, dict[str, Any]], provenance: dict[str, Any]) -> Path:
+    """Rewrite ``config_path`` in place with the calibrated values of the ``steps`` present (results as the
+    wizard stores them, docs/calibration.md) and a ``[calibration]`` provenance section; keep the previous file
+    as ``<stem>.<UTC timestamp>.previous.toml`` beside it. Returns ``config_path``.
+
+    ``provenance``: ``session`` (str), ``devices`` ({name: "vendor model serial"}), ``sim`` (bool), optionally
+    ``date`` (ISO; default now, UTC) and ``wizard_version`` (default the installed monoguide's). Steps absent
+    from ``steps`` leave their values and their earlier provenance summary untouched."""
+    config_path = Path(config_path)
+    try:
+        original = config_path.read_bytes()
+        mode = stat.S_IMODE(config_path.stat().st_mode)
+    except OSError as exc:
+        raise CalibrationFileError(f"{config_path}: cannot read the cell config: {exc}") from exc
+    try:
+        text = original.decode("utf-8")
+        raw = tomllib.loads(text)
+        doc = tomlkit.parse(text)
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError, tomlkit.exceptions.TOMLKitError) as exc:
+        raise CalibrationFileUneditable(f"{config_path}: not valid TOML, nothing written: {exc}") from exc
+    now = datetime.now(UTC)
+    previous = _previous_path(config_path, now)
+    values = _calibrated_values(steps, raw, config_path)
+    record = _provenance(steps, provenance, raw, previous.name, now)
+
+    for (table, index, key), (kind, value) in values.items():
+        _set(_calibrated_table(doc, table, index, config_path), key, kind, value)
+    replace_section(doc, "calibration", _provenance_table(record))
+
+    def check_then_keep_previous(written: Path) -> None:
+        _check_written(written, values, config_path)
+        write_atomic(previous, original, mode=mode)
+        shutil.copystat(config_path, previous)
+
+    try:
+        write_atomic(config_path, doc.as_string(), mode=mode, durable=True, before_replace=check_then_keep_previous)
+    except OSError as exc:
+        raise CalibrationFileError(f"{config_path}: cannot write the calibration (nothing replaced): {exc}") from exc
+    return config_path
+
+
+def read_calibration_provenance(config: CellConfig | str | os.PathLike[str]) -> dict[str, Any] | None:
+    """The ``[calibration]`` section of a cell config (loaded, or a path to load) as a dict, or ``None`` when the
+    file has none (never calibrated by the wizard). Keys: date, session, wizard_version, previous, sim,
+    devices {name: str}, steps {step: {key: value}}."""
+    if not isinstance(config, CellConfig):
+        config = load_cell_config(config)
+    return config.calibration
+
+
+def step_summary(step: str, result: dict[str, Any]) -> dict[str, Any]:
+    """The residual summary of one step's result written to ``[calibration.steps]`` (numbers, strings, booleans,
+    lists of numbers; non-finite numbers left out). In --sim the step's ``truth_error`` keys as ``truth_<key>``."""
+    r = result
+    out: dict[str, Any] = {}
+    if isinstance(r.get("done"), str):
+        out["done"] = r["done"]
+    if step == "intrinsics":
+        out |= {"rms_px": r.get("rms_px"), "images": r.get("images"), "rejected": len(r.get("rejected") or {})}
+    elif step in ("cell", "part"):
+        res = list((r.get("residuals_mm") or {}).values())
+        out |= {"method": r.get("method"), "rms_mm": r.get("rms_mm"), "max_mm": max(res) if res else None}
+    elif step == "base":
+        res = list(r.get("residuals_mm") or [])
+        out |= {"rms_mm": r.get("rms_mm"), "max_mm": max(res) if res else None, "poses": len(res),
+                "sigma_mm": r.get("sigma_mm"), "sigma_deg": r.get("sigma_deg")}
+    elif step == "sfi":
+        poses = r.get("poses") or []
+        out |= {"spread_mm_max": max((p.get("spread_mm", 0.0) for p in poses), default=None),
+                "spread_deg_max": max((p.get("spread_deg", 0.0) for p in poses), default=None),
+                "visits": sum(int(p.get("visits", 0)) for p in poses), "poses": len(poses),
+                "hand_eye_spread_mm": r.get("T_f_c_spread_mm"), "hand_eye_spread_deg": r.get("T_f_c_spread_deg")}
+    elif step == "verify":
+        out |= {k: r.get(k) for k in ("max_mm", "max_deg", "n", "sigma_mm", "sigma_deg", "predicted_sigma_mm",
+                                      "predicted_sigma_deg")}
+    elif step == "accuracy":
+        out |= {"rms_dR_deg": r.get("rms_dR_deg"), "rms_dT_mm": r.get("rms_dT_mm"), "passed": r.get("passed"),
+                "poses": len(r.get("rows") or [])}
+    for key, value in (r.get("truth_error") or {}).items():
+        out[f"truth_{key}"] = value
+    return {k: v for k, v in ((k, _plain(v)) for k, v in out.items()) if v is not None}
+
+
+# --- the calibrated values -------------------------------------------------------------------------
+
+
+def _calibrated_values(steps: dict[str, dict[str, Any]], raw: dict[str, Any], path: Path
+                       ) -> dict[tuple[str, int, str], tuple[str, Any]]:
+    """(table, array index or -1, key) -> ("matrix" | "number" | "integer", value) for every calibrated key."""
+    if unknown := sorted(set(steps) - set(CALIBRATION_STEPS)):
+        raise CalibrationValueInvalid(f"{path}: unknown calibration steps {unknown}; steps are "
+                                      f"{list(CALIBRATION_STEPS)}")
+    out: dict[tuple[str, int, str], tuple[str, Any]] = {}
+    if "intrinsics" in steps:
+        camera = steps["intrinsics"].get("camera")
+        if not isinstance(camera, dict) or (missing := [k for k in INTRINSICS_KEYS if k not in camera]):
+            lacks = missing if isinstance(camera, dict) else list(INTRINSICS_KEYS)
+            raise CalibrationValueInvalid(f"intrinsics: the result's camera lacks {lacks}")
+        for key in INTRINSICS_KEYS:
+            value = camera[key]
+            if key in ("width", "height"):
+                if isinstance(value, bool) or not isinstance(value, int | float) or value != int(value) or value < 1:
+                    raise CalibrationValueInvalid(f"intrinsics: camera {key} = {value!r}: expected a positive integer")
+                out[("camera.intrinsics", -1, key)] = ("integer", int(value))
+            else:
+                out[("camera.intrinsics", -1, key)] = ("number", _finite(value, f"intrinsics: camera {key}"))
+    if "base" in steps:
+        out[("reference", -1, "T_cf_b")] = ("matrix", _rigid(steps["base"].get("T_cf_b"), "base: T_cf_b"))
+    if "part" in steps:
+        out[("reference", -1, "T_cf_w0")] = ("matrix", _rigid(steps["part"].get("T_cf_w0"), "part: T_cf_w0"))
+    if "sfi" in steps:
+        sfi = steps["sfi"]
+        out[("camera", -1, "T_f_c")] = ("matrix", _rigid(sfi.get("T_f_c"), "sfi: T_f_c"))
+        entries = raw.get("measuring_poses") or []
+        names = [e.get("name", f"S{i + 1}") if isinstance(e, dict) else "" for i, e in enumerate(entries)]
+        for pose in sfi.get("poses") or []:
+            name = pose.get("name")
+            if name not in names:
+                raise CalibrationValueInvalid(f"sfi: measuring pose {name!r} is not in {path} (it has {names})")
+            out[("measuring_poses", names.index(name), "T_cf_si")] = (
+                "matrix", _rigid(pose.get("T_cf_si"), f"sfi: {name} T_cf_si"))
+    return out
+
+
+def _rigid(value: Any, name: str) -> np.ndarray:
+    try:
+        T = check_transform(np.asarray(value, dtype=float), name)
+    except (MonoguideError, TypeError, ValueError) as exc:
+        raise CalibrationValueInvalid(f"{name}: not a rigid 4x4 transform: {exc}") from exc
+    return make_T(orthonormalize(T[:3, :3]), T[:3, 3])  # written exactly as it will load
+
+
+def _finite(value: Any, name: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise CalibrationValueInvalid(f"{name} = {value!r}: expected a finite number")
+    return float(value)
+
+
+def _check_written(tmp: Path, values: dict[tuple[str, int, str], tuple[str, Any]], path: Path) -> None:
+    """The new text loads, and holds exactly what was meant (a wrong edit would load with the old values)."""
+    try:
+        config = load_cell_config(tmp)
+    except ConfigError as exc:
+        message = str(exc).replace(str(tmp), str(path))
+        raise CalibrationFileRefused(f"{path}: the calibrated file would not load, nothing replaced: "
+                                     f"{message}") from exc
+    for (table, index, key), (_kind, value) in values.items():
+        if table == "camera.intrinsics":
+            got: Any = getattr(config.camera.intrinsics, key)
+        elif table == "camera":
+            got = config.camera.T_f_c
+        elif table == "reference":
+            got = getattr(config.reference, key)
+        else:
+            got = config.measuring_poses[index].T_cf_si
+        if got is None or not np.allclose(np.asarray(got, dtype=float), value, rtol=0.0, atol=ROUND_TRIP_TOL):
+            raise CalibrationFileRefused(f"{path}: [{table}] {key}: the rewritten file loads {got!r}, not the "
+                                         f"calibrated value; nothing replaced")
+
+
+# --- provenance ----------------------------------------------------------------------------------
+
+
+def _provenance(steps: dict[str, dict[str, Any]], provenance: dict[str, Any], raw: dict[str, Any],
+                previous: str, now: datetime) -> dict[str, Any]:
+    """The ``[calibration]`` section to write, as plain data in the order written (docs/calibration.md)."""
+    if unknown := sorted(set(provenance) - set(PROVENANCE_KEYS)):
+        raise CalibrationValueInvalid(f"provenance: unknown keys {unknown}; known: {list(PROVENANCE_KEYS)}")
+    date = provenance.get("date") or now.isoformat(timespec="seconds")
+    try:
+        datetime.fromisoformat(str(date))
+    except ValueError as exc:
+        raise CalibrationValueInvalid(f"provenance: date = {date!r}: expected an ISO 8601 date-time") from exc
+    devices = provenance.get("devices") or {}
+    if not isinstance(devices, dict):
+        raise CalibrationValueInvalid(f"provenance: devices = {devices!r}: expected {{name: 'vendor model serial'}}")
+    old = raw.get("calibration") if isinstance(raw.get("calibration"), dict) else {}
+    summaries = {k: v for k, v in (old.get("steps") or {}).items() if k in CALIBRATION_STEPS and k not in steps}
+    summaries |= {name: step_summary(name, result) for name, result in steps.items()}
+    record: dict[str, Any] = {"date": str(date)}
+    if provenance.get("session") is not None:
+        record["session"] = str(provenance["session"])
+    record["wizard_version"] = str(provenance.get("wizard_version") or _version())
+    record["previous"] = previous
+    if provenance.get("sim") is not None:
+        record["sim"] = bool(provenance["sim"])
+    if devices:
+        record["devices"] = {str(k): str(v) for k, v in devices.items()}
+    if summaries:
+        record["steps"] = {name: summaries[name] for name in CALIBRATION_STEPS if name in summaries}
+    return record
+
+
+def _provenance_table(record: dict[str, Any]) -> Table:
+    """``[calibration]`` with its comments; a step's summary on one line (an inline table)."""
+    table = commented(tomlkit.table(), 'written by `monoguide calibrate` (docs/calibration.md, "The calibration '
+                                       'file")')
+    for key, value in record.items():
+        if key == "previous":
+            table[key] = commented(tomlkit.item(value), "this file before the calibration; roll back by copying "
+                                                        "it here")
+        elif key == "devices":
+            table[key] = tomlkit.table()
+            table[key].update(value)
+        elif key == "steps":
+            table[key] = commented(tomlkit.table(), "per step: when, and its residual summary")
+            table[key].update({name: inline_table(summary) for name, summary in value.items()})
+        else:
+            table[key] = value
+    return table
+
+
+def _version() -> str:
+    try:
+        return metadata.version("monoguide")
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def _previous_path(config_path: Path, now: datetime) -> Path:
+    stamp = now.strftime("%Y%m%dT%H%M%SZ")
+    for k in range(1, 1000):
+        path = config_path.with_name(f"{config_path.stem}.{stamp}{'' if k == 1 else f'-{k}'}.previous.toml")
+        if not path.exists():
+            return path
+    raise CalibrationFileError(f"{config_path}: too many previous copies stamped {stamp}")
+
+
+# --- editing the document ------------------------------------------------------------------------
+
+
+def _calibrated_table(doc: tomlkit.TOMLDocument, table: str, index: int, path: Path) -> Table | InlineTable:
+    """The table of ``doc`` a calibrated key of ``table`` (``[[measuring_poses]]`` entry ``index``) goes into."""
+    node: Any = doc
+    where = ""
+    for part in _TABLES[table]:
+        where = f"{where}.{part}" if where else part
+        node = node.get(part) if isinstance(node, dict) else None
+        if node is None:
+            raise CalibrationFileUneditable(f"{path}: there is no [{where}] to write the calibration into")
+    if index >= 0:
+        where = f"[[{where}]] #{index + 1}"
+        node = node[index] if isinstance(node, list) and index < len(node) else None
+    else:
+        where = f"[{where}]"
+    if not isinstance(node, dict):
+        raise CalibrationFileUneditable(f"{path}: {where} is not a table, the calibration cannot be written into it")
+    return node
+
+
+def _set(table: Table | InlineTable, key: str, kind: str, value: Any) -> None:
+    """Set a calibrated value; its comments (after it, after a matrix's opening bracket) stay."""
+    if kind == "integer":
+        item: Item = tomlkit.item(int(value))
+    elif kind == "number":
+        item = tomlkit.item(float(value))
+    else:  # one row per line; inside an inline table too (TOML allows newlines inside an array value)
+        item = matrix(value, comment=opening_comment(table[key]) if key in table else None)
+    if key in table:
+        table[key] = item
+    else:
+        add_after_last_value(table, key, item)
+
+
+# --- provenance values ----------------------------------------------------------------------------
+
+
+def _plain(value: Any) -> Any:
+    """A JSON-ish value as the provenance can hold it (None: leave it out)."""
+    if isinstance(value, bool | str):
+        return value
+    if isinstance(value, int | np.integer):
+        return int(value)
+    if isinstance(value, float | np.floating):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, list | tuple | np.ndarray):
+        numbers = [_plain(v) for v in value]
+        return numbers if all(isinstance(v, int | float) and not isinstance(v, bool) for v in numbers) else None
+    return None

@@ -1,0 +1,1 @@
+"""One measuring cycle: the state machine of its states and the blocking work of each (docs/cycle.md)."""
