@@ -35,6 +35,12 @@ import tomlkit.exceptions
 from tomlkit.items import InlineTable, Item, Table
 
 from monoguide.daemon.config._cell import CALIBRATION_STEPS, INTRINSICS_KEYS, CellConfig, ConfigError, load_cell_config
+from monoguide.daemon.errors import (
+    CalibrationFileError,
+    CalibrationFileRefused,
+    CalibrationFileUneditable,
+    CalibrationValueInvalid,
+)
 from monoguide.drivers.atomic_file import write_atomic
 from monoguide.drivers.toml_format import (
     MATRIX_DECIMALS,
@@ -45,7 +51,6 @@ from monoguide.drivers.toml_format import (
     opening_comment,
     replace_section,
 )
-from monoguide.solver.calibration.errors import CalibrationError
 from monoguide.solver.errors import MonoguideError
 from monoguide.solver.frames import check_transform, make_T, orthonormalize
 
@@ -66,39 +71,6 @@ ROUND_TRIP_TOL = 1e-9  # what loads back must equal what was calibrated to this 
 PROVENANCE_KEYS = ("date", "session", "wizard_version", "sim", "devices")
 _TABLES = {"camera.intrinsics": ("camera", "intrinsics"), "camera": ("camera",), "reference": ("reference",),
            "measuring_poses": ("measuring_poses",)}
-
-
-class CalibrationFileError(CalibrationError):
-    """The cell config could not be read, copied or written (the message has the OS's reason)."""
-
-    code = "CALIBRATION_FILE_FAILED"
-    plc_code = 725
-
-
-class CalibrationFileRefused(CalibrationFileError):
-    """The rewritten config would not load (or not hold the calibrated values): nothing was replaced."""
-
-    code = "CALIBRATION_FILE_REFUSED"
-    plc_code = 726
-
-
-class CalibrationValueInvalid(CalibrationFileError):
-    """A step's result or the provenance cannot be written: not a rigid 4x4, a missing coefficient, a measuring
-    pose the config does not have, an unknown provenance key."""
-
-    code = "CALIBRATION_VALUE_INVALID"
-    plc_code = 727
-
-
-class CalibrationFileUneditable(CalibrationFileError):
-    """The config is not a TOML file the calibration can be written into: not valid TOML (or not UTF-8), or a
-    calibrated key's table is missing or not a table (``camera = 5``); the message names it.
-
-    Tables written inline (``intrinsics = { ... }``) or out of order are edited like any other, so a file the
-    loader accepts is never uneditable: every table the calibration writes into is one it requires."""
-
-    code = "CALIBRATION_FILE_UNEDITABLE"
-    plc_code = 728
 
 
 # --- public --------------------------------------------------------------------------------------

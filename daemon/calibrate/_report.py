@@ -20,6 +20,7 @@ import numpy as np
 
 from monoguide.daemon.calibrate._file import step_summary
 from monoguide.daemon.config._cell import CALIBRATION_STEPS, CellConfig, ConfigError, load_cell_config
+from monoguide.daemon.errors import CalibrationReportFailed
 from monoguide.daemon.figures import (
     DEG,
     MM,
@@ -35,7 +36,6 @@ from monoguide.daemon.figures import (
     outline,
     save_png,
 )
-from monoguide.solver.calibration.errors import CalibrationError
 from monoguide.solver.camera import CameraModel
 from monoguide.solver.errors import MonoguideError
 from monoguide.solver.frames import invert, make_T
@@ -68,13 +68,6 @@ TRUTH_TARGETS = {"focal_rel_error": 0.001, "base_mm": 0.05, "base_deg": 0.005, "
 TITLES = {"intrinsics": "1 Camera intrinsics", "cell": "2 Cell frame CF", "base": "3 Robot base BF",
           "part": "4 Part frame WF and T_cf_w0", "sfi": "5 Measuring-pose frames SFi", "verify": "6 Verification",
           "accuracy": "7 Accuracy validation (Table 3)"}
-
-
-class CalibrationReportFailed(CalibrationError):
-    """The report could not be written (the directory is not writable); the calibration itself stands."""
-
-    code = "CALIBRATION_REPORT_FAILED"
-    plc_code = 729
 
 
 def write_report(directory: Path, session: dict[str, Any], config: CellConfig | None = None) -> Path:

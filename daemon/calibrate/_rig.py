@@ -15,10 +15,10 @@ from pathlib import Path
 from typing import Any, Protocol, TextIO
 
 from monoguide.daemon.config._cell import CellConfig
+from monoguide.daemon.errors import CalibrationAborted
 from monoguide.drivers.camera import Camera
 from monoguide.drivers.robot import Robot
 from monoguide.drivers.tracker import LaserTracker
-from monoguide.solver.errors import MonoguideError
 
 # The actions the wizard asks of the operator and their detail keywords (the complete list):
 SHOW_PLATE = "show_plate"  # k: int, n: int -- hold/put the circle plate at position k of n (0-based k) in view
@@ -95,13 +95,6 @@ class CalibrationRig:
     truth_errors: Callable[..., dict[str, float]] | None = None
     # --sim only: truth_errors(step, step_result, earlier_results) -> {"base_mm": ..., ...}; None on a real cell
     sim: bool = False
-
-
-class CalibrationAborted(MonoguideError):
-    """The person at the cell ended the wizard at a prompt (end of input); the session keeps what was done."""
-
-    code = "CALIBRATION_ABORTED"
-    plc_code = 706
 
 
 class ConsoleOperator:

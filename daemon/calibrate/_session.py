@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from monoguide.daemon.calibrate._rig import REQUIRES, STEPS, CalibrationOptions
+from monoguide.daemon.errors import CalibrationSessionInvalid
 from monoguide.drivers.atomic_file import write_atomic
 from monoguide.solver.errors import MonoguideError
 
@@ -33,20 +34,6 @@ OPTIONS_OF_STEP: dict[str, tuple[str, ...]] = {
     "verify": ("repeats",),
     "accuracy": ("accuracy_poses", "tolerance_mm", "tolerance_deg"),
 }
-
-
-class CalibrationSessionInvalid(MonoguideError):
-    """The session file cannot be used: unreadable, of another format, or made for another cell or options."""
-
-    code = "CALIBRATION_SESSION_INVALID"
-    plc_code = 707
-
-
-class CalibrationStepNotReady(MonoguideError):
-    """A calibration step was asked for before the steps it needs were done."""
-
-    code = "CALIBRATION_STEP_NOT_READY"
-    plc_code = 708
 
 
 def now_iso() -> str:

@@ -46,10 +46,10 @@ from monoguide.daemon.assembly import (
 )
 from monoguide.daemon.calibrate._rig import CalibrationOptions, CalibrationRig
 from monoguide.daemon.config._cell import CellConfig, load_cell_config
+from monoguide.daemon.errors import SimRigConfigError, SimRigError
 from monoguide.daemon.simulate._config import derive_config, dumps_toml
 from monoguide.daemon.simulate._run import dies_with_us
 from monoguide.solver.calibration.target import default_target_marks
-from monoguide.solver.errors import MonoguideError
 from monoguide.solver.frames import compose, invert, make_T, pose_difference, rotvec_to_matrix
 
 CELL_START_TIMEOUT_S = 90.0  # building the cell and starting its device processes on a busy machine
@@ -57,22 +57,6 @@ STOP_TIMEOUT_S = 10.0
 FOCAL_REL = 0.015  # the perturbation of the calibration values: what "before calibration" means here
 PRINCIPAL_PX = 20.0
 POSE_PERTURBATION = {"T_cf_b": (5.0, 0.3), "T_cf_w0": (5.0, 0.3), "T_cf_si": (3.0, 0.3), "T_f_c": (2.0, 0.2)}
-
-
-class SimRigError(MonoguideError):
-    """The simulated cell of ``calibrate --sim`` would not start (its process ended, or did not say in time
-    that its devices listen); the message has the end of its log."""
-
-    code = "SIM_RIG_ERROR"
-    plc_code = 720
-
-
-class SimRigConfigError(SimRigError):
-    """The truth config cannot be the simulated cell of ``calibrate --sim`` (no ``[sim]``, no simulated robot
-    or tracker, no SMR on the flange tool, no calibration targets)."""
-
-    code = "SIM_RIG_CONFIG"
-    plc_code = 721
 
 
 def _quiet(_text: str) -> None:

@@ -39,10 +39,10 @@ from monoguide.daemon.calibrate._rig import (
 from monoguide.daemon.calibrate._session import CalibrationStepNotReady
 from monoguide.daemon.config._cell import CellConfig
 from monoguide.daemon.cycle._runner import CycleAborted, CycleRunner
+from monoguide.daemon.errors import CalibrationMeasurementFailed, CalibrationNoTarget
 from monoguide.drivers.errors import ConfigError, DeviceError
 from monoguide.solver.calibration.averaging import mean_pose
 from monoguide.solver.calibration.cell import fit_part_frame
-from monoguide.solver.calibration.errors import CalibrationError
 from monoguide.solver.calibration.sfi import calibrate_measuring_pose, fit_target_frame, visit_sfi
 from monoguide.solver.calibration.target import TargetMarks, default_target_marks, measure_target
 from monoguide.solver.calibration.verify import repeatability, table3
@@ -52,23 +52,6 @@ from monoguide.solver.frames import compose, invert, transform_points
 from monoguide.solver.planning.prediction import pose_sigmas
 from monoguide.solver.record import parse_record
 from monoguide.solver.uncertainty import predicted_covariance
-
-
-class CalibrationMeasurementFailed(CalibrationError):
-    """A camera measurement of the part during the verification or the accuracy validation failed (a hole not
-    found, an inconsistent solve); the message says which measurement and why."""
-
-    code = "CALIBRATION_MEASUREMENT_FAILED"
-    plc_code = 713
-
-
-class CalibrationNoTarget(CalibrationError):
-    """The cell config does not say which target the measuring poses are calibrated with (no
-    ``[calibration_target]``)."""
-
-    code = "CALIBRATION_NO_TARGET"
-    plc_code = 714
-
 
 # --- step 4: the part frame ---------------------------------------------------------------------
 

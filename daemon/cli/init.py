@@ -17,17 +17,11 @@ from typing import Annotated
 import typer
 
 from monoguide.daemon.cli._console import stderr_console, stdout_console
+from monoguide.daemon.errors import InitFailed
 from monoguide.daemon.packaged import CELL_TEMPLATE, config_file, robot_program_files, sim_cell_config, unit_file
 from monoguide.solver.errors import MonoguideError
 
 CELL_FILE = "cell.toml"
-
-
-class InitFailed(MonoguideError):
-    """``monoguide init`` wrote nothing: a file exists (without --force) or cannot be written; the message names it."""
-
-    code = "INIT_FAILED"
-    plc_code = 660
 
 
 def init(

@@ -21,6 +21,7 @@ import typer
 from monoguide.daemon.cli._console import stderr_console, stdout_console
 from monoguide.daemon.cli.solve import _solve_one, _xyzabc
 from monoguide.daemon.config._cell import load_cell_config
+from monoguide.daemon.errors import CycleWithoutRecord, NoJournal
 from monoguide.daemon.service._journal import (
     JOURNAL_FILE,
     Journal,
@@ -48,20 +49,6 @@ LIST_COLUMNS = (  # header, width (negative: left-aligned)
     ("cycle", 6), ("finished", -19), ("job", 4), ("tag", 6), ("status", -24), ("rms px", 7), ("rot deg", 8),
     ("grasp mm", 9), ("base offset x y z mm, a b c deg", -44), ("total s", 8), ("stages s", -1),
 )
-
-
-class NoJournal(JournalError):
-    """The state directory has no journal: the service has not committed a cycle there."""
-
-    code = "JOURNAL_MISSING"
-    plc_code = 642
-
-
-class CycleWithoutRecord(JournalError):
-    """The cycle failed before its measurement record existed, so there is nothing to solve again."""
-
-    code = "JOURNAL_NO_RECORD"
-    plc_code = 643
 
 
 def open_journal(given_state_dir: Path | str | None) -> Journal:

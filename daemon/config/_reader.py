@@ -23,32 +23,11 @@ from typing import Any
 
 import numpy as np
 
+from monoguide.daemon.errors import ConfigMissingKey, ConfigUnknownKey, ConfigUnknownSection
 from monoguide.drivers.errors import ConfigError
 from monoguide.solver.frames import orthonormalize
 
 MATRIX_TOL = 2e-3  # printed calibration matrices are rounded to 4 decimals; re-orthonormalised on load
-
-
-class ConfigUnknownKey(ConfigError):
-    """A key the section does not have (a typo, or a key of another section); the message suggests the
-    closest known key."""
-
-    code = "CONFIG_UNKNOWN_KEY"
-    plc_code = 530
-
-
-class ConfigUnknownSection(ConfigError):
-    """A section (``[name]``) the cell config does not have; the message suggests the closest known one."""
-
-    code = "CONFIG_UNKNOWN_SECTION"
-    plc_code = 531
-
-
-class ConfigMissingKey(ConfigError):
-    """A required key (or section) is absent; nothing is ever filled in for it."""
-
-    code = "CONFIG_MISSING_KEY"
-    plc_code = 532
 
 
 _MISSING = object()

@@ -41,7 +41,7 @@ import numpy as np
 
 from monoguide.daemon.assembly import taught_flange_poses
 from monoguide.daemon.config._cell import CellConfig, ChecksConfig
-from monoguide.daemon.cycle._states import CycleError
+from monoguide.daemon.errors import CapturePoseMismatch
 from monoguide.drivers.camera import Camera, CameraSettings, Frame
 from monoguide.drivers.errors import ConfigError, DeviceError, PlcUnknownJob
 from monoguide.drivers.robot import Robot
@@ -83,21 +83,6 @@ def tune_malloc() -> bool:
     except (OSError, AttributeError):
         return False
     return bool(mallopt(_M_ARENA_MAX, MALLOC_ARENAS)) & bool(mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES))
-
-
-class CycleAborted(CycleError):
-    """The service stopped mid-cycle (SIGTERM): nothing was written to the robot."""
-
-    code = "CYCLE_ABORTED"
-    plc_code = 602
-
-
-class CapturePoseMismatch(CycleError):
-    """At a capture the robot's actual flange pose was farther from the taught measuring pose than
-    ``[robot] pose_tolerance_mm`` / ``pose_tolerance_deg``: the view is not the calibrated one."""
-
-    code = "CYCLE_CAPTURE_POSE_MISMATCH"
-    plc_code = 603
 
 
 @dataclass

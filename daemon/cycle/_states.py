@@ -28,26 +28,13 @@ from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
+from monoguide.daemon.errors import IllegalTransition
 from monoguide.solver.errors import MonoguideError
 
 log = logging.getLogger(__name__)
 
 # plc_code ranges of the service: 600-609 this state machine, 610-619 the service (sd_notify, run),
 # 620-629 the journal (daemon/service/_journal.py).
-
-
-class CycleError(MonoguideError):
-    """The measuring cycle failed in a way that is not a device's or the solver's fault."""
-
-    code = "CYCLE_ERROR"
-    plc_code = 600
-
-
-class IllegalTransition(CycleError):
-    """A cause happened in a state where the transition table does not allow it: a bug, never ignored."""
-
-    code = "CYCLE_ILLEGAL_TRANSITION"
-    plc_code = 601
 
 
 class State(enum.Enum):

@@ -39,6 +39,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from monoguide.daemon.errors import (
+    JournalEntryInvalid,
+    JournalEntryMissing,
+    JournalError,
+    JournalNotADatabase,
+    JournalReplaced,
+    JournalSchemaUnknown,
+)
 from monoguide.solver.errors import MonoguideError
 
 SCHEMA_VERSION = 2  # 2: the offset_intent table (version 1 journals are upgraded in place when opened)
@@ -90,49 +98,6 @@ CREATE INDEX IF NOT EXISTS cycle_images_kept ON cycle (number)
     WHERE images_pruned_at IS NULL AND images_json <> '[]';
 """
 _IMAGES_KEPT = "images_pruned_at IS NULL AND images_json <> '[]'"
-
-
-class JournalError(MonoguideError):
-    """The journal could not be opened, read or written; the message names the file and SQLite's words."""
-
-    code = "JOURNAL_ERROR"
-    plc_code = 620
-
-
-class JournalNotADatabase(JournalError):
-    """The journal file exists but is not an SQLite database (corrupt, truncated, or some other file)."""
-
-    code = "JOURNAL_NOT_A_DATABASE"
-    plc_code = 621
-
-
-class JournalSchemaUnknown(JournalError):
-    """An SQLite file that is not a monoguide journal, or one of a schema version this release cannot read."""
-
-    code = "JOURNAL_SCHEMA_UNKNOWN"
-    plc_code = 622
-
-
-class JournalEntryMissing(JournalError):
-    """No cycle with that number in the journal."""
-
-    code = "JOURNAL_ENTRY_MISSING"
-    plc_code = 623
-
-
-class JournalEntryInvalid(JournalError):
-    """A cycle entry that contradicts itself (ok without a result, error without a code); nothing written."""
-
-    code = "JOURNAL_ENTRY_INVALID"
-    plc_code = 624
-
-
-class JournalReplaced(JournalError):
-    """The journal file was deleted or replaced while the service ran: nothing more is committed to it, no
-    offset is written; FAULT stays latched until the service is restarted (which opens the journal anew)."""
-
-    code = "JOURNAL_REPLACED"
-    plc_code = 625
 
 
 @dataclass(frozen=True)

@@ -13,16 +13,9 @@ import os
 import socket
 from collections.abc import Mapping
 
-from monoguide.solver.errors import MonoguideError
+from monoguide.daemon.errors import NotifySocketInvalid
 
 log = logging.getLogger(__name__)
-
-
-class NotifySocketInvalid(MonoguideError):
-    """``$NOTIFY_SOCKET`` is neither a path nor an abstract socket name (``@...``); e.g. a ``vsock:`` address."""
-
-    code = "NOTIFY_SOCKET_INVALID"
-    plc_code = 610
 
 
 class Notifier:

@@ -18,32 +18,11 @@ import os
 from collections.abc import Mapping
 from pathlib import Path
 
-from monoguide.solver.errors import MonoguideError
+from monoguide.daemon.errors import StateDirInUse, StateDirInvalid, StateDirMissing
 
 DEFAULT_STATE_DIR = Path("/var/lib/monoguide")
 LOCK_FILE = "service.lock"
 STATE_DIR_HELP = "The service's state directory (default: $STATE_DIRECTORY, else /var/lib/monoguide)."
-
-
-class StateDirMissing(MonoguideError):
-    """The state directory does not exist or is not a directory (wrong --state-dir, or the service never ran)."""
-
-    code = "STATE_DIR_MISSING"
-    plc_code = 640
-
-
-class StateDirInvalid(MonoguideError):
-    """``--state-dir`` was given but empty (or blank): refused rather than taken for the current directory."""
-
-    code = "STATE_DIR_INVALID"
-    plc_code = 645
-
-
-class StateDirInUse(MonoguideError):
-    """Another service holds this state directory (its lock file is locked); the message names its PID."""
-
-    code = "STATE_DIR_IN_USE"
-    plc_code = 644
 
 
 def state_dir(given: Path | str | None = None, environ: Mapping[str, str] | None = None) -> Path:

@@ -18,21 +18,14 @@ from pathlib import Path
 from typing import Any
 
 from monoguide.daemon.cycle._states import State
+from monoguide.daemon.errors import ServiceStatusInvalid
 from monoguide.drivers.atomic_file import write_atomic
-from monoguide.solver.errors import MonoguideError
 
 STATUS_FILE = "status.json"
 FORMAT = "monoguide.status/1"
 DEFAULT_HEARTBEAT_S = 1.0
 STALE_HEARTBEATS = 3  # a file older than this many heartbeats belongs to a service that no longer runs
 STATES = tuple(state.value for state in State)
-
-
-class ServiceStatusInvalid(MonoguideError):
-    """The status file exists but cannot be read or is not a ``monoguide.status/1`` object."""
-
-    code = "SERVICE_STATUS_INVALID"
-    plc_code = 641
 
 
 @dataclass(frozen=True)

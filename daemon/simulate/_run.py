@@ -30,11 +30,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
+from monoguide.daemon.errors import SimulateChildEnded, SimulateTimeout
 from monoguide.daemon.service._journal import JOURNAL_FILE, Journal, JournalRow
 from monoguide.daemon.simulate._config import DerivedCell, derive_config
 from monoguide.daemon.simulate._summary import InjectedFault, read_truth_log
 from monoguide.drivers.errors import ConfigError
-from monoguide.solver.errors import MonoguideError
 
 CELL_START_TIMEOUT_S = 90.0  # building the cell and starting three device processes on a busy machine
 SERVICE_START_TIMEOUT_S = 60.0  # service start + devices connected + first part finished
@@ -64,27 +64,6 @@ FAULT_PLAN: tuple[tuple[str, str, tuple[str, ...]], ...] = (
     ("plc", "no-ack", ("PLC_ACK_TIMEOUT",)),
     ("plc", "heartbeat-stopped", ("PLC_HEARTBEAT_LOST", "CYCLE_ABORTED")),
 )
-
-
-class SimulateError(MonoguideError):
-    """The simulated run itself failed (not a cycle: the cell or the service would not start, or hung)."""
-
-    code = "SIMULATE_ERROR"
-    plc_code = 650
-
-
-class SimulateTimeout(SimulateError):
-    """A wait of the simulated run ran out; the message says for what and what the service last logged."""
-
-    code = "SIMULATE_TIMEOUT"
-    plc_code = 651
-
-
-class SimulateChildEnded(SimulateError):
-    """The simulated cell or the service ended before the run was over; the message has its last log lines."""
-
-    code = "SIMULATE_CHILD_ENDED"
-    plc_code = 652
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,280 @@
+"""Every failure the daemon reports itself, one class each, with its stable ``code`` and its PLC ``plc_code``.
+
+The device and configuration failures are the drivers' (``monoguide.drivers.errors``), the solver's its own
+(``monoguide.solver.errors``); these are the cycle's, the service's, the journal's, the wizard's, ``simulate``'s
+and the commands'. docs/plc-interface.md's table of codes is generated from all of them
+(``tests/drivers/test_plc_interface_doc.py --write``).
+
+``plc_code`` ranges: 530-539 the cell config, 600-609 the cycle, 610-619 the service, 620-629 the journal,
+640-649 the state directory and the readers, 650-659 ``simulate``, 660 ``init``, 700-729 the calibration wizard.
+"""
+
+from __future__ import annotations
+
+from monoguide.drivers.errors import ConfigError
+from monoguide.solver.calibration.errors import CalibrationError
+from monoguide.solver.errors import MonoguideError
+
+
+class ConfigUnknownKey(ConfigError):
+    """A key the section does not have (a typo, or a key of another section); the message suggests the
+    closest known key."""
+
+    code = "CONFIG_UNKNOWN_KEY"
+    plc_code = 530
+
+
+class ConfigUnknownSection(ConfigError):
+    """A section (``[name]``) the cell config does not have; the message suggests the closest known one."""
+
+    code = "CONFIG_UNKNOWN_SECTION"
+    plc_code = 531
+
+
+class ConfigMissingKey(ConfigError):
+    """A required key (or section) is absent; nothing is ever filled in for it."""
+
+    code = "CONFIG_MISSING_KEY"
+    plc_code = 532
+
+
+class CycleError(MonoguideError):
+    """The measuring cycle failed in a way that is not a device's or the solver's fault."""
+
+    code = "CYCLE_ERROR"
+    plc_code = 600
+
+
+class IllegalTransition(CycleError):
+    """A cause happened in a state where the transition table does not allow it: a bug, never ignored."""
+
+    code = "CYCLE_ILLEGAL_TRANSITION"
+    plc_code = 601
+
+
+class CycleAborted(CycleError):
+    """The service stopped mid-cycle (SIGTERM): nothing was written to the robot."""
+
+    code = "CYCLE_ABORTED"
+    plc_code = 602
+
+
+class CapturePoseMismatch(CycleError):
+    """At a capture the robot's actual flange pose was farther from the taught measuring pose than
+    ``[robot] pose_tolerance_mm`` / ``pose_tolerance_deg``: the view is not the calibrated one."""
+
+    code = "CYCLE_CAPTURE_POSE_MISMATCH"
+    plc_code = 603
+
+
+class NotifySocketInvalid(MonoguideError):
+    """``$NOTIFY_SOCKET`` is neither a path nor an abstract socket name (``@...``); e.g. a ``vsock:`` address."""
+
+    code = "NOTIFY_SOCKET_INVALID"
+    plc_code = 610
+
+
+class JournalError(MonoguideError):
+    """The journal could not be opened, read or written; the message names the file and SQLite's words."""
+
+    code = "JOURNAL_ERROR"
+    plc_code = 620
+
+
+class JournalNotADatabase(JournalError):
+    """The journal file exists but is not an SQLite database (corrupt, truncated, or some other file)."""
+
+    code = "JOURNAL_NOT_A_DATABASE"
+    plc_code = 621
+
+
+class JournalSchemaUnknown(JournalError):
+    """An SQLite file that is not a monoguide journal, or one of a schema version this release cannot read."""
+
+    code = "JOURNAL_SCHEMA_UNKNOWN"
+    plc_code = 622
+
+
+class JournalEntryMissing(JournalError):
+    """No cycle with that number in the journal."""
+
+    code = "JOURNAL_ENTRY_MISSING"
+    plc_code = 623
+
+
+class JournalEntryInvalid(JournalError):
+    """A cycle entry that contradicts itself (ok without a result, error without a code); nothing written."""
+
+    code = "JOURNAL_ENTRY_INVALID"
+    plc_code = 624
+
+
+class JournalReplaced(JournalError):
+    """The journal file was deleted or replaced while the service ran: nothing more is committed to it, no
+    offset is written; FAULT stays latched until the service is restarted (which opens the journal anew)."""
+
+    code = "JOURNAL_REPLACED"
+    plc_code = 625
+
+
+class StateDirMissing(MonoguideError):
+    """The state directory does not exist or is not a directory (wrong --state-dir, or the service never ran)."""
+
+    code = "STATE_DIR_MISSING"
+    plc_code = 640
+
+
+class ServiceStatusInvalid(MonoguideError):
+    """The status file exists but cannot be read or is not a ``monoguide.status/1`` object."""
+
+    code = "SERVICE_STATUS_INVALID"
+    plc_code = 641
+
+
+class NoJournal(JournalError):
+    """The state directory has no journal: the service has not committed a cycle there."""
+
+    code = "JOURNAL_MISSING"
+    plc_code = 642
+
+
+class CycleWithoutRecord(JournalError):
+    """The cycle failed before its measurement record existed, so there is nothing to solve again."""
+
+    code = "JOURNAL_NO_RECORD"
+    plc_code = 643
+
+
+class StateDirInUse(MonoguideError):
+    """Another service holds this state directory (its lock file is locked); the message names its PID."""
+
+    code = "STATE_DIR_IN_USE"
+    plc_code = 644
+
+
+class StateDirInvalid(MonoguideError):
+    """``--state-dir`` was given but empty (or blank): refused rather than taken for the current directory."""
+
+    code = "STATE_DIR_INVALID"
+    plc_code = 645
+
+
+class SimulateError(MonoguideError):
+    """The simulated run itself failed (not a cycle: the cell or the service would not start, or hung)."""
+
+    code = "SIMULATE_ERROR"
+    plc_code = 650
+
+
+class SimulateTimeout(SimulateError):
+    """A wait of the simulated run ran out; the message says for what and what the service last logged."""
+
+    code = "SIMULATE_TIMEOUT"
+    plc_code = 651
+
+
+class SimulateChildEnded(SimulateError):
+    """The simulated cell or the service ended before the run was over; the message has its last log lines."""
+
+    code = "SIMULATE_CHILD_ENDED"
+    plc_code = 652
+
+
+class InitFailed(MonoguideError):
+    """``monoguide init`` wrote nothing: a file exists (without --force) or cannot be written; the message names it."""
+
+    code = "INIT_FAILED"
+    plc_code = 660
+
+
+class CalibrationAborted(MonoguideError):
+    """The person at the cell ended the wizard at a prompt (end of input); the session keeps what was done."""
+
+    code = "CALIBRATION_ABORTED"
+    plc_code = 706
+
+
+class CalibrationSessionInvalid(MonoguideError):
+    """The session file cannot be used: unreadable, of another format, or made for another cell or options."""
+
+    code = "CALIBRATION_SESSION_INVALID"
+    plc_code = 707
+
+
+class CalibrationStepNotReady(MonoguideError):
+    """A calibration step was asked for before the steps it needs were done."""
+
+    code = "CALIBRATION_STEP_NOT_READY"
+    plc_code = 708
+
+
+class CalibrationMeasurementFailed(CalibrationError):
+    """A camera measurement of the part during the verification or the accuracy validation failed (a hole not
+    found, an inconsistent solve); the message says which measurement and why."""
+
+    code = "CALIBRATION_MEASUREMENT_FAILED"
+    plc_code = 713
+
+
+class CalibrationNoTarget(CalibrationError):
+    """The cell config does not say which target the measuring poses are calibrated with (no
+    ``[calibration_target]``)."""
+
+    code = "CALIBRATION_NO_TARGET"
+    plc_code = 714
+
+
+class SimRigError(MonoguideError):
+    """The simulated cell of ``calibrate --sim`` would not start (its process ended, or did not say in time
+    that its devices listen); the message has the end of its log."""
+
+    code = "SIM_RIG_ERROR"
+    plc_code = 720
+
+
+class SimRigConfigError(SimRigError):
+    """The truth config cannot be the simulated cell of ``calibrate --sim`` (no ``[sim]``, no simulated robot
+    or tracker, no SMR on the flange tool, no calibration targets)."""
+
+    code = "SIM_RIG_CONFIG"
+    plc_code = 721
+
+
+class CalibrationFileError(CalibrationError):
+    """The cell config could not be read, copied or written (the message has the OS's reason)."""
+
+    code = "CALIBRATION_FILE_FAILED"
+    plc_code = 725
+
+
+class CalibrationFileRefused(CalibrationFileError):
+    """The rewritten config would not load (or not hold the calibrated values): nothing was replaced."""
+
+    code = "CALIBRATION_FILE_REFUSED"
+    plc_code = 726
+
+
+class CalibrationValueInvalid(CalibrationFileError):
+    """A step's result or the provenance cannot be written: not a rigid 4x4, a missing coefficient, a measuring
+    pose the config does not have, an unknown provenance key."""
+
+    code = "CALIBRATION_VALUE_INVALID"
+    plc_code = 727
+
+
+class CalibrationFileUneditable(CalibrationFileError):
+    """The config is not a TOML file the calibration can be written into: not valid TOML (or not UTF-8), or a
+    calibrated key's table is missing or not a table (``camera = 5``); the message names it.
+
+    Tables written inline (``intrinsics = { ... }``) or out of order are edited like any other, so a file the
+    loader accepts is never uneditable: every table the calibration writes into is one it requires."""
+
+    code = "CALIBRATION_FILE_UNEDITABLE"
+    plc_code = 728
+
+
+class CalibrationReportFailed(CalibrationError):
+    """The report could not be written (the directory is not writable); the calibration itself stands."""
+
+    code = "CALIBRATION_REPORT_FAILED"
+    plc_code = 729
