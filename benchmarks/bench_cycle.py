@@ -37,9 +37,10 @@ from pathlib import Path
 import numpy as np
 
 from monoguide.daemon.assembly import build_camera, build_robot
-from monoguide.daemon.config._cell import load_cell_config
+from monoguide.daemon.config import load_cell_config
+from monoguide.daemon.cycle import CycleRunner
 from monoguide.daemon.cycle import _runner as cycle_module
-from monoguide.daemon.cycle._runner import CycleAborted, CycleRunner
+from monoguide.daemon.errors import CycleAborted
 from monoguide.drivers import robot as robot_module
 from monoguide.solver import holes
 

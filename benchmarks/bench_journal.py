@@ -33,7 +33,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from monoguide.daemon.service._journal import JOURNAL_FILE, CycleEntry, Journal
+from monoguide.daemon.service import JOURNAL_FILE, CycleEntry, Journal
 
 EXAMPLE_RECORD = Path(__file__).parents[1] / "examples" / "example-record.json"
 BATCH = 5000

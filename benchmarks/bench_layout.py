@@ -29,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from monoguide.daemon.config._cell import load_cell_config
-from monoguide.daemon.plan._layout import cell_layout
+from monoguide.daemon.config import load_cell_config
+from monoguide.daemon.plan import cell_layout
 from monoguide.drivers.sim.cell import part_deviation
 from monoguide.solver import frames
 from monoguide.solver.camera import CameraModel

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from monoguide.daemon.config._cell import load_cell_config
+from monoguide.daemon.config import load_cell_config
 from monoguide.solver import frames
 from monoguide.solver.errors import MonoguideError
 from monoguide.solver.pose import initial_iterated, solve_ml, solve_paper

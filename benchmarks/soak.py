@@ -26,7 +26,7 @@ from typing import Any
 
 from bench_cycle import HOST, cheaper_config
 
-from monoguide.daemon.simulate._run import Progress, RunOptions, run_simulation
+from monoguide.daemon.simulate import Progress, RunOptions, run_simulation
 
 RSS_LIMIT_MB = 300.0
 FLAT_TOLERANCE = 0.05

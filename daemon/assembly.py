@@ -19,8 +19,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from monoguide.daemon.config._cell import CellConfig, default_sim_state_file, load_cell_config
-from monoguide.daemon.config._reader import ConfigMissingKey
+from monoguide.daemon.config import CellConfig, default_sim_state_file, load_cell_config
+from monoguide.daemon.errors import ConfigMissingKey
 from monoguide.drivers.atomic_file import write_atomic
 from monoguide.drivers.camera import Camera, CameraSettings
 from monoguide.drivers.errors import ConfigError, DeviceNotFound

@@ -4,7 +4,8 @@ object in, a :class:`MeasurementRecord` out, and a solve result back to a JSON-r
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+import time
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -21,8 +22,8 @@ from monoguide.solver.errors import (
     UnknownReference,
     UnsupportedFormat,
 )
-from monoguide.solver.offset import Envelope, PartDisplacement, describe_displacement
-from monoguide.solver.pose import PoseResult
+from monoguide.solver.offset import Envelope, PartDisplacement, check_envelope, describe_displacement
+from monoguide.solver.pose import DEFAULT_FALSE_ALARM_RATE, PoseResult, solve_pose
 from monoguide.solver.problem import PoseProblem
 
 FORMAT = "monoguide.measurement/1"
@@ -61,14 +62,53 @@ class MeasurementRecord:
         return describe_displacement(T_s1_w, self.problem.T_s1_w0, self.grasp_point_w, self.T_b_s1)
 
 
-def parse_record(data: Any) -> MeasurementRecord:
+def parse_record(data: Any, T_f_c: np.ndarray | None = None) -> MeasurementRecord:
     """Validate a decoded JSON object; raise a :class:`RecordError` subclass naming the bad field.
 
     Strict: a missing required key is :class:`MissingKey`, a key the format does not define (at the top
     level or in the camera, views, observations, view_sigma, envelope, truth) is :class:`UnknownKey`.
     The optional keys have the spec's defaults: ``sigma_px`` :data:`DEFAULT_SIGMA_PX`, no view_sigma,
     the centroid as grasp point, the default envelope, no ``T_b_s1``.
+
+    ``T_f_c`` (4, 4): the camera's pose on the robot flange, which the record format has no place for. With it,
+    the record's view sigmas (the robot's repeatability) act at the flange, as the cycle takes them
+    (:meth:`PoseProblem.with_flange`); the cycle and ``monoguide journal resolve`` both solve through here.
     """
+    record = _parse_record(data)
+    problem = record.problem
+    if T_f_c is None or not (problem.view_sigma_mm or problem.view_sigma_deg):
+        return record
+    return replace(record, problem=problem.with_flange(T_f_c))
+
+
+def solve_record(data: Any, method: str = "ml", *, robust: bool = False,
+                 false_alarm_rate: float = DEFAULT_FALSE_ALARM_RATE,
+                 T_f_c: np.ndarray | None = None) -> tuple[dict[str, Any], tuple[float, float] | None]:
+    """Solve one decoded record as ``monoguide solve`` and ``journal resolve`` report it: the result object of
+    the spec (an error object naming what was wrong, for a bad record or a refused solve — a pose beyond the
+    record's envelope is an error, not "ok") and, when the record carries its truth, the error against it
+    (rotation deg, mm at the grasp point)."""
+    record_id = data.get("id") if isinstance(data, dict) and isinstance(data.get("id"), str) else None
+    try:
+        try:
+            record = parse_record(data, T_f_c)
+            start = time.perf_counter()
+            result = solve_pose(record.problem, method, robust=robust, false_alarm_rate=false_alarm_rate)
+            elapsed_ms = (time.perf_counter() - start) * 1e3
+            check_envelope(record.displacement(result.T_s1_w), record.envelope)
+        except RecursionError:  # a record nested too deep for Python, caught while reporting on it
+            raise RecordError("nested deeper than Python can read (no record is)") from None
+    except MonoguideError as error:
+        return error_to_dict(record_id, error), None
+    truth_error = None
+    if record.truth_T_s1_w is not None:  # rotation, and position error where the part is gripped
+        grasp = record.grasp_point_w[None, :]
+        moved = frames.transform_points(result.T_s1_w, grasp) - frames.transform_points(record.truth_T_s1_w, grasp)
+        truth_error = (frames.pose_difference(result.T_s1_w, record.truth_T_s1_w)[0], float(np.linalg.norm(moved)))
+    return result_to_dict(record, result, elapsed_ms), truth_error
+
+
+def _parse_record(data: Any) -> MeasurementRecord:
     if not isinstance(data, dict):
         raise RecordError(f"a record must be a JSON object, got {type(data).__name__}")
     if data.get("format") != FORMAT:

@@ -34,12 +34,13 @@ import tomlkit
 import tomlkit.exceptions
 from tomlkit.items import InlineTable, Item, Table
 
-from monoguide.daemon.config._cell import CALIBRATION_STEPS, INTRINSICS_KEYS, CellConfig, ConfigError, load_cell_config
+from monoguide.daemon.config import CALIBRATION_STEPS, INTRINSICS_KEYS, CellConfig, load_cell_config
 from monoguide.daemon.errors import (
     CalibrationFileError,
     CalibrationFileRefused,
     CalibrationFileUneditable,
     CalibrationValueInvalid,
+    ConfigError,
 )
 from monoguide.drivers.atomic_file import write_atomic
 from monoguide.drivers.toml_format import (

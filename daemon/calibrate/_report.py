@@ -19,8 +19,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from monoguide.daemon.calibrate._file import step_summary
-from monoguide.daemon.config._cell import CALIBRATION_STEPS, CellConfig, ConfigError, load_cell_config
-from monoguide.daemon.errors import CalibrationReportFailed
+from monoguide.daemon.config import CALIBRATION_STEPS, CellConfig, load_cell_config
+from monoguide.daemon.errors import CalibrationReportFailed, ConfigError
 from monoguide.daemon.figures import (
     DEG,
     MM,

@@ -14,7 +14,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, Protocol, TextIO
 
-from monoguide.daemon.config._cell import CellConfig
+from monoguide.daemon.config import CellConfig
 from monoguide.daemon.errors import CalibrationAborted
 from monoguide.drivers.camera import Camera
 from monoguide.drivers.robot import Robot

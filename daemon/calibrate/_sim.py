@@ -45,10 +45,9 @@ from monoguide.daemon.assembly import (
     read_sim_state,
 )
 from monoguide.daemon.calibrate._rig import CalibrationOptions, CalibrationRig
-from monoguide.daemon.config._cell import CellConfig, load_cell_config
+from monoguide.daemon.config import CellConfig, load_cell_config
 from monoguide.daemon.errors import SimRigConfigError, SimRigError
-from monoguide.daemon.simulate._config import derive_config, dumps_toml
-from monoguide.daemon.simulate._run import dies_with_us
+from monoguide.daemon.simulate import derive_config, dies_with_us, dumps_toml
 from monoguide.solver.calibration.target import default_target_marks
 from monoguide.solver.frames import compose, invert, make_T, pose_difference, rotvec_to_matrix
 

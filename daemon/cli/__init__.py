@@ -7,7 +7,6 @@ The commands live in their own modules (``cmd_*``); this table names them, so th
 from __future__ import annotations
 
 import importlib
-from importlib import metadata
 from typing import Annotated, Any
 
 import typer
@@ -72,6 +71,8 @@ app = typer.Typer(
 
 def _print_version(value: bool) -> None:
     if value:
+        from importlib import metadata
+
         typer.echo(f"monoguide {metadata.version('monoguide')}")
         raise typer.Exit()
 

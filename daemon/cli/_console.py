@@ -26,3 +26,8 @@ def _console(stderr: bool) -> Console:
     if console.is_terminal:
         return console
     return Console(stderr=stderr, highlight=False, soft_wrap=True, width=PIPED_WIDTH, no_color=True)
+
+
+def say(console: Console, line: str) -> None:
+    """One line as it is: no markup, no highlighting, never wrapped (a path or a code stays whole)."""
+    console.print(line, markup=False, highlight=False, soft_wrap=True)

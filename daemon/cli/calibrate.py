@@ -24,25 +24,27 @@ from typing import Annotated, Any
 
 import typer
 
-from monoguide.daemon.calibrate._file import write_calibration
-from monoguide.daemon.calibrate._report import write_report
-from monoguide.daemon.calibrate._rig import (
+from monoguide.daemon.calibrate import (
+    CELL_METHODS,
     STEPS,
-    CalibrationAborted,
     CalibrationOptions,
     CalibrationRig,
-    ConsoleOperator,
-)
-from monoguide.daemon.calibrate._session import (
     CalibrationSession,
-    CalibrationSessionInvalid,
-    CalibrationStepNotReady,
+    ConsoleOperator,
     now_iso,
     open_session,
+    run_accuracy,
+    run_base,
+    run_cell,
+    run_intrinsics,
+    run_part,
+    run_sfi,
+    run_verify,
+    write_calibration,
+    write_report,
 )
-from monoguide.daemon.calibrate._steps_camera import run_accuracy, run_part, run_sfi, run_verify
-from monoguide.daemon.calibrate._steps_frames import CELL_METHODS, run_base, run_cell, run_intrinsics
-from monoguide.daemon.config._cell import CellConfig, load_cell_config
+from monoguide.daemon.config import CellConfig, load_cell_config
+from monoguide.daemon.errors import CalibrationAborted, CalibrationSessionInvalid, CalibrationStepNotReady
 from monoguide.drivers.errors import ConfigError
 from monoguide.solver.errors import MonoguideError
 
@@ -315,7 +317,7 @@ def plan_steps(session: CalibrationSession, step: str | None, from_step: str | N
 def _open_rig(cfg: CellConfig, config_path: Path, work: Path, options: CalibrationOptions, *, sim: bool, seed: int,
               host: str | None, yes: bool) -> Iterator[CalibrationRig]:
     if sim:
-        from monoguide.daemon.calibrate._sim import open_sim_rig  # only --sim needs it (it starts sim-cell)
+        from monoguide.daemon.calibrate import open_sim_rig  # only --sim needs it (it starts sim-cell
 
         with open_sim_rig(config_path, work, options, seed=seed, host=host, progress=_err) as rig:
             yield rig

@@ -10,30 +10,17 @@ from __future__ import annotations
 import dataclasses
 import json
 import sys
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Annotated, Any
 
-import numpy as np
 import typer
 
-from monoguide.daemon.cli._console import stderr_console, stdout_console
-from monoguide.daemon.cli.solve import _solve_one, _xyzabc
-from monoguide.daemon.config._cell import load_cell_config
-from monoguide.daemon.errors import CycleWithoutRecord, NoJournal
-from monoguide.daemon.service._journal import (
-    JOURNAL_FILE,
-    Journal,
-    JournalEntryMissing,
-    JournalError,
-    JournalRow,
-    OffsetIntent,
-)
-from monoguide.daemon.service._state_dir import STATE_DIR_HELP, StateDirInvalid, existing_state_dir
-from monoguide.solver import frames
-from monoguide.solver.errors import MonoguideError
-from monoguide.solver.pose import DEFAULT_FALSE_ALARM_RATE, ESTIMATORS
+from monoguide.daemon.cli import _format as fmt
+from monoguide.daemon.cli._console import say, stderr_console, stdout_console
+from monoguide.daemon.cli._policy import reporting_errors
+from monoguide.daemon.errors import CycleWithoutRecord, JournalEntryMissing, JournalError, NoJournal
+from monoguide.daemon.service import JOURNAL_FILE, STATE_DIR_HELP, Journal, JournalRow, OffsetIntent, existing_state_dir
 
 app = typer.Typer(
     name="journal",
@@ -74,25 +61,15 @@ def cycle_summary(row: JournalRow) -> dict[str, Any]:
 def print_cycle_lines(rows: list[JournalRow]) -> None:
     """The human table of ``journal list`` (rows in the order given), a fixed-column line per cycle."""
     out = stdout_console()
-    _print(out, _columns([header for header, _ in LIST_COLUMNS]))
+    say(out, _columns([header for header, _ in LIST_COLUMNS]))
     for row in rows:
         s = cycle_summary(row)
-        _print(out, _columns([
-            str(row.number), _local_time(row.finished_at), _text(row.job), _text(row.part_tag),
-            "ok" if row.status == "ok" else f"{row.error_code} ({row.plc_code})", _number(s["rms_px"], 3),
-            _number(s["rotation_deg"], 4), _number(s["grasp_shift_mm"], 3), _xyzabc(s["base_offset_xyzabc"]),
+        say(out, _columns([
+            str(row.number), fmt.local_time(row.finished_at), fmt.text(row.job), fmt.text(row.part_tag),
+            "ok" if row.status == "ok" else f"{row.error_code} ({row.plc_code})", fmt.number(s["rms_px"], 3),
+            fmt.number(s["rotation_deg"], 4), fmt.number(s["grasp_shift_mm"], 3), fmt.xyzabc(s["base_offset_xyzabc"]),
             f"{s['duration_s']:.2f}", " ".join(f"{stage} {seconds:.3f}" for stage, seconds in row.timings_s.items()),
         ]))
-
-
-def reporting_errors(command: Callable[[], None]) -> None:
-    """Run ``command``; a monoguide error becomes one line ``CODE message`` on standard error and exit 1 (2 for
-    a bad option such as an empty --state-dir)."""
-    try:
-        command()
-    except MonoguideError as error:
-        _print(stderr_console(), f"{error.code} {error.message}")
-        raise typer.Exit(2 if isinstance(error, StateDirInvalid) else 1) from None
 
 
 @app.command("list")
@@ -137,7 +114,7 @@ def show(
 def resolve(
     number: Annotated[int, typer.Argument(help="The cycle number (PLC register 13).")],
     state_dir: StateDirOption = None,
-    method: Annotated[str, typer.Option(help=f"Estimator: {', '.join(sorted(ESTIMATORS))}.")] = "ml",
+    method: Annotated[str, typer.Option(help="Estimator: ml (maximum likelihood) or paper (the paper's).")] = "ml",
     robust: Annotated[bool, typer.Option(help="Huber loss in the ML refinement (down-weights outliers).")] = False,
     config: Annotated[Path | None, typer.Option("--config", "-c", help="the cell config the service ran with: "
                                                 "its [camera] T_f_c takes the robot's repeatability at the flange, "
@@ -147,6 +124,8 @@ def resolve(
     """Solve the cycle's stored measurement record again with today's solver; print both results and
     their difference (deg, mm). Exit 1 when today's solve fails. Give the cell's --config to weight the views
     exactly as the cycle did (the record does not carry the camera's mounting on the flange)."""
+    from monoguide.solver.pose import ESTIMATORS  # the solver's libraries only for the command that solves
+
     if method not in ESTIMATORS:
         raise typer.BadParameter(f"{method!r}; choose one of {', '.join(sorted(ESTIMATORS))}", param_hint="--method")
     if robust and method != "ml":
@@ -154,21 +133,25 @@ def resolve(
     outcome: dict[str, Any] = {}
 
     def run() -> None:
+        from monoguide.daemon.config import load_cell_config
+        from monoguide.solver.record import solve_record
+
         T_f_c = load_cell_config(config).camera.T_f_c if config is not None else None
         with open_journal(state_dir) as journal:
             row = journal.cycle(number)
         if row.record is None:
             raise CycleWithoutRecord(f"cycle {number} failed before its measurement record existed"
                                      f" ({row.error_code}: {row.error_message}); nothing to solve again")
-        today = _solve_one(f"cycle {number}", row.record, method, robust, DEFAULT_FALSE_ALARM_RATE, T_f_c)
+        today, truth_error = solve_record(row.record, method, robust=robust, T_f_c=T_f_c)
+        if today.get("status") == "error":
+            today["error"]["message"] = f"cycle {number}: {today['error']['message']}"
         stored = row.result if row.result is not None else {
             "status": "error", "error": {"code": row.error_code, "message": row.error_message}}
-        outcome.update(cycle=number, stored=stored, today=today["result"],
-                       difference=_difference(stored, today["result"]))
+        outcome.update(cycle=number, stored=stored, today=today, difference=_difference(stored, today))
         if json_output:
             _write_lines([json.dumps(outcome)])
         else:
-            _print_resolve(outcome, today["truth_error"], row)
+            _print_resolve(outcome, truth_error, row)
     reporting_errors(run)
     if outcome["today"]["status"] != "ok":
         raise typer.Exit(1)
@@ -207,7 +190,7 @@ def export(
             except OSError as exc:
                 raise JournalError(f"cannot write {output}: {exc.strerror or exc}") from exc
         where = "standard output" if output is None else str(output)
-        _print(stderr_console(), f"exported {len(lines)} records of cycles {start}..{end} to {where}"
+        say(stderr_console(), f"exported {len(lines)} records of cycles {start}..{end} to {where}"
                f" ({skipped} cycles without a record skipped)")
     reporting_errors(run)
 
@@ -224,6 +207,10 @@ def _cycles(journal: Journal, start: int, end: int) -> Iterator[JournalRow]:
 
 
 def _difference(stored: dict[str, Any], today: dict[str, Any]) -> dict[str, Any] | None:
+    import numpy as np
+
+    from monoguide.solver import frames
+
     """How far today's pose lies from the stored one: rotation deg, the grasp point's shift mm, and the base
     offset's rotation deg and translation mm. None unless both solved."""
     if stored.get("status") != "ok" or today.get("status") != "ok":
@@ -240,16 +227,20 @@ def _difference(stored: dict[str, Any], today: dict[str, Any]) -> dict[str, Any]
 
 
 def _print_cycle(row: JournalRow, images: list[Path], intent: OffsetIntent | None = None) -> None:
+    import numpy as np
+
+    from monoguide.solver import frames
+
     out = stdout_console()
     outcome = "ok" if row.status == "ok" else f"{row.error_code} ({row.plc_code}): {row.error_message}"
     lines = [
         f"cycle {row.number}: {outcome}",
-        f"  started {_local_time(row.started_at)}, finished {_local_time(row.finished_at)}"
-        f" ({row.finished_at - row.started_at:.2f} s); job {_text(row.job)}, part tag {_text(row.part_tag)}",
+        f"  started {fmt.local_time(row.started_at)}, finished {fmt.local_time(row.finished_at)}"
+        f" ({row.finished_at - row.started_at:.2f} s); job {fmt.text(row.job)}, part tag {fmt.text(row.part_tag)}",
         "  timings s: " + (", ".join(f"{stage} {s:.3f}" for stage, s in row.timings_s.items()) or "-"),
         "  offset sent to the robot: " + ("no" if intent is None else
                                           f"request {intent.sequence}, x y z mm, a b c deg: "
-                                          f"{_xyzabc(list(intent.registers))}; "
+                                          f"{fmt.xyzabc(list(intent.registers))}; "
                                           + (f"{intent.outcome}" + (", then cleared" if intent.cleared else "")
                                              if intent.outcome else "NOT SETTLED: the robot may hold it")),
     ]
@@ -259,7 +250,7 @@ def _print_cycle(row: JournalRow, images: list[Path], intent: OffsetIntent | Non
             f"  result: rms {result['rms_px']:.3f} px, rotation {result['rotation_deg']:.4f} deg, grasp shift"
             f" {result['grasp_shift_mm']:.3f} mm, σ {result['sigma_rot_deg']:.4f} deg {result['sigma_trans_mm']:.3f}"
             f" mm, method {result['method']}",
-            f"  base offset x y z mm, a b c deg: {_xyzabc(result.get('base_offset_xyzabc')) or '- (no T_b_s1)'}",
+            f"  base offset x y z mm, a b c deg: {fmt.xyzabc(result.get('base_offset_xyzabc')) or '- (no T_b_s1)'}",
             "  T_s1_w: " + json.dumps(result["T_s1_w"]),
         ]
     record = row.record
@@ -268,17 +259,17 @@ def _print_cycle(row: JournalRow, images: list[Path], intent: OffsetIntent | Non
     else:
         lines.append(f"  record: id {record.get('id')}, {len(record['views'])} views,"
                      f" {len(record['observations'])} observations, sigma {record.get('sigma_px', 0.1)} px,"
-                     f" T_b_s1 {_yes(record.get('T_b_s1'))}, truth {_yes(record.get('truth'))}")
+                     f" T_b_s1 {fmt.yes(record.get('T_b_s1'))}, truth {fmt.yes(record.get('truth'))}")
         lines += [f"    view {o['view']} point {o['point']}: pixel {o['pixel'][0]:.3f} {o['pixel'][1]:.3f}"
                   for o in record["observations"]]
     lines.append(f"  robot poses at capture (T_b_f), x y z mm, a b c deg: {len(row.poses_at_capture) or 'none'}")
-    lines += [f"    capture {i + 1}: {_xyzabc(list(frames.T_to_kuka_frame(np.array(T))))}"
+    lines += [f"    capture {i + 1}: {fmt.xyzabc(list(frames.T_to_kuka_frame(np.array(T))))}"
               for i, T in enumerate(row.poses_at_capture)]
-    pruned = f" (deleted {_local_time(row.images_pruned_at)})" if row.images_pruned_at is not None else ""
+    pruned = f" (deleted {fmt.local_time(row.images_pruned_at)})" if row.images_pruned_at is not None else ""
     lines.append(f"  images{pruned}: {len(images) or 'none'}")
     lines += [f"    {path}{'' if path.exists() else ' (missing)'}" for path in images]
     for line in lines:
-        _print(out, line)
+        say(out, line)
 
 
 def _print_resolve(outcome: dict[str, Any], truth_error: tuple[float, float] | None, row: JournalRow) -> None:
@@ -286,7 +277,7 @@ def _print_resolve(outcome: dict[str, Any], truth_error: tuple[float, float] | N
     stored, today, diff = outcome["stored"], outcome["today"], outcome["difference"]
 
     def field(result: dict[str, Any], key: str, digits: int) -> str:
-        return _number(result.get(key), digits) if result.get("status") == "ok" else "-"
+        return fmt.number(result.get(key), digits) if result.get("status") == "ok" else "-"
 
     def state(result: dict[str, Any]) -> str:
         return "ok" if result["status"] == "ok" else result["error"]["code"]
@@ -299,19 +290,19 @@ def _print_resolve(outcome: dict[str, Any], truth_error: tuple[float, float] | N
              "" if diff is None else f"{diff['grasp_point_mm']:.4f} mm at the grasp point"),
             ("σ deg / mm", f"{field(stored, 'sigma_rot_deg', 4)} / {field(stored, 'sigma_trans_mm', 3)}",
              f"{field(today, 'sigma_rot_deg', 4)} / {field(today, 'sigma_trans_mm', 3)}", ""),
-            ("base offset", _xyzabc(stored.get("base_offset_xyzabc")) or "-",
-             _xyzabc(today.get("base_offset_xyzabc")) or "-",
+            ("base offset", fmt.xyzabc(stored.get("base_offset_xyzabc")) or "-",
+             fmt.xyzabc(today.get("base_offset_xyzabc")) or "-",
              "" if diff is None or diff["base_offset_mm"] is None
              else f"{diff['base_offset_deg']:.4f} deg {diff['base_offset_mm']:.4f} mm"),
             ("method", str(stored.get("method", "-")), str(today.get("method", "-")), "")]
-    _print(out, f"cycle {outcome['cycle']} solved again (stored {_local_time(row.finished_at)})")
+    say(out, f"cycle {outcome['cycle']} solved again (stored {fmt.local_time(row.finished_at)})")
     for name, before, now, difference in rows:
-        _print(out, f"  {name:<15} stored {before:<40} today {now:<40} {difference}".rstrip())
+        say(out, f"  {name:<15} stored {before:<40} today {now:<40} {difference}".rstrip())
     if truth_error is not None:
-        _print(out, f"  today vs the record's truth: {truth_error[0]:.4f} deg,"
+        say(out, f"  today vs the record's truth: {truth_error[0]:.4f} deg,"
                     f" {truth_error[1]:.3f} mm at the grasp point")
     if today["status"] != "ok":
-        _print(stderr_console(), f"{today['error']['code']} {today['error']['message']}")
+        say(stderr_console(), f"{today['error']['code']} {today['error']['message']}")
 
 
 def _columns(cells: list[str]) -> str:
@@ -326,21 +317,5 @@ def _write_lines(lines: Iterator[str] | list[str]) -> None:
     sys.stdout.flush()
 
 
-def _print(console: Any, line: str) -> None:
-    console.print(line, markup=False, highlight=False, soft_wrap=True)
 
 
-def _local_time(unix_s: float) -> str:
-    return time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(unix_s))
-
-
-def _number(value: float | None, digits: int) -> str:
-    return "-" if value is None else f"{value:.{digits}f}"
-
-
-def _yes(value: Any) -> str:
-    return "no" if value is None else "yes"
-
-
-def _text(value: int | None) -> str:
-    return "-" if value is None else str(value)

@@ -20,11 +20,18 @@ import typer
 from rich.markup import escape
 
 from monoguide.daemon.cli._console import stderr_console, stdout_console
-from monoguide.daemon.config._cell import load_cell_config
+from monoguide.daemon.config import load_cell_config
 from monoguide.daemon.figures import draw_style, new_figure, save_png
-from monoguide.daemon.plan._drawing import draw_layout
-from monoguide.daemon.plan._layout import CellLayout, cell_layout, planned_pose_names, write_config_with_layout
-from monoguide.daemon.plan._report import fig5_report, print_fig5, print_layout
+from monoguide.daemon.plan import (
+    CellLayout,
+    cell_layout,
+    draw_layout,
+    fig5_report,
+    planned_pose_names,
+    print_fig5,
+    print_layout,
+    write_config_with_layout,
+)
 from monoguide.solver.camera import PAPER_CAMERA
 from monoguide.solver.errors import MonoguideError
 from monoguide.solver.frames import compose

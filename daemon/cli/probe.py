@@ -29,7 +29,7 @@ from rich.markup import escape
 
 from monoguide.daemon.assembly import build_camera, build_robot, build_tracker, camera_settings
 from monoguide.daemon.cli._console import stderr_console, stdout_console
-from monoguide.daemon.config._cell import CellConfig, load_cell_config
+from monoguide.daemon.config import CellConfig, load_cell_config
 from monoguide.drivers.errors import ConfigError
 from monoguide.drivers.robot import RobotStatus
 from monoguide.solver.errors import MonoguideError

@@ -20,8 +20,9 @@ from typing import Annotated
 
 import typer
 
-from monoguide.daemon.config._cell import load_cell_config, require_sections
-from monoguide.daemon.service._state_dir import STATE_DIR_HELP, ServiceLock, StateDirInvalid, state_dir
+from monoguide.daemon.config import load_cell_config, require_sections
+from monoguide.daemon.errors import StateDirInvalid
+from monoguide.daemon.service import STATE_DIR_HELP, ServiceLock, state_dir
 from monoguide.drivers.errors import ConfigError
 from monoguide.solver.errors import MonoguideError
 
@@ -79,7 +80,7 @@ def run(
 
 
 async def _serve(cfg: object, directory: Path, cycles: int | None) -> None:
-    from monoguide.daemon.service._loop import run_service
+    from monoguide.daemon.service import run_service
 
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()

@@ -48,7 +48,7 @@ from typing import Annotated, Any
 import typer
 
 from monoguide.daemon.assembly import build_sim_cell, sim_state_file, write_sim_state
-from monoguide.daemon.config._cell import CellConfig, load_cell_config
+from monoguide.daemon.config import CellConfig, load_cell_config
 from monoguide.drivers.errors import ConfigError, DeviceBusy, DeviceDisconnected, DeviceTimeout
 from monoguide.solver.errors import MonoguideError
 

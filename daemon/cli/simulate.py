@@ -23,10 +23,19 @@ from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsed
 from rich.progress import Progress as RichProgress
 
 from monoguide.daemon.cli._console import stderr_console, stdout_console
-from monoguide.daemon.simulate._config import predicted_grasp_sigma
-from monoguide.daemon.simulate._report import write_report
-from monoguide.daemon.simulate._run import Progress, RunOptions, RunResult, cycles_needed_for_faults, run_simulation
-from monoguide.daemon.simulate._summary import Targets, join_cycles, render, summarize
+from monoguide.daemon.simulate import (
+    Progress,
+    RunOptions,
+    RunResult,
+    Targets,
+    cycles_needed_for_faults,
+    join_cycles,
+    predicted_grasp_sigma,
+    render,
+    run_simulation,
+    summarize,
+    write_report,
+)
 from monoguide.drivers.errors import ConfigError
 from monoguide.solver.errors import MonoguideError
 

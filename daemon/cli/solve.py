@@ -10,21 +10,17 @@ from __future__ import annotations
 
 import json
 import sys
-import time
 from collections.abc import Iterable, Iterator
-from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Any
 
-import numpy as np
 import typer
 
+from monoguide.daemon.cli import _format as fmt
 from monoguide.daemon.cli._console import stderr_console, stdout_console
-from monoguide.solver import frames
 from monoguide.solver.errors import MonoguideError, RecordError
-from monoguide.solver.offset import check_envelope
-from monoguide.solver.pose import DEFAULT_FALSE_ALARM_RATE, ESTIMATORS, solve_pose
-from monoguide.solver.record import error_to_dict, parse_record, result_to_dict
+from monoguide.solver.pose import DEFAULT_FALSE_ALARM_RATE, ESTIMATORS
+from monoguide.solver.record import error_to_dict, solve_record
 
 JSON_LINES_SUFFIXES = (".jsonl", ".ndjson")
 MAX_INT_DIGITS = 308  # no count or coordinate in a record needs more; beyond it float() overflows
@@ -73,35 +69,14 @@ def solve(
 # --- solving ------------------------------------------------------------------------------------
 
 
-def _solve_one(source: str, data: Any, method: str, robust: bool, false_alarm_rate: float,
-               T_f_c: np.ndarray | None = None) -> dict[str, Any]:
-    """The printed row of one record: its source, its result object (the spec's), the error against truth.
-    With ``T_f_c`` (the camera on the flange) the record's view sigmas are the robot's repeatability at the
-    flange, as the cycle takes them (the record format has no place for the camera's mounting)."""
-    record_id = data.get("id") if isinstance(data, dict) and isinstance(data.get("id"), str) else None
+def _solve_one(source: str, data: Any, method: str, robust: bool, false_alarm_rate: float) -> dict[str, Any]:
+    """The printed row of one record: its source, its result object (the spec's), the error against truth."""
     if isinstance(data, MonoguideError):
         return {"source": source, "result": error_to_dict(None, data), "truth_error": None}
-    try:
-        try:
-            record = parse_record(data)
-            if T_f_c is not None and (record.problem.view_sigma_mm or record.problem.view_sigma_deg):
-                record = replace(record, problem=record.problem.with_flange(T_f_c))
-            start = time.perf_counter()
-            result = solve_pose(record.problem, method, robust=robust, false_alarm_rate=false_alarm_rate)
-            elapsed_ms = (time.perf_counter() - start) * 1e3
-            check_envelope(record.displacement(result.T_s1_w), record.envelope)  # beyond it: an error, not "ok"
-        except RecursionError:  # a record nested too deep for Python, caught while reporting on it
-            raise RecordError("nested deeper than Python can read (no record is)") from None
-    except MonoguideError as error:
-        result_object = error_to_dict(record_id, error)
-        result_object["error"]["message"] = f"{source}: {result_object['error']['message']}"
-        return {"source": source, "result": result_object, "truth_error": None}
-    truth_error = None
-    if record.truth_T_s1_w is not None:  # rotation, and position error where the part is gripped
-        grasp = record.grasp_point_w[None, :]
-        moved = frames.transform_points(result.T_s1_w, grasp) - frames.transform_points(record.truth_T_s1_w, grasp)
-        truth_error = (frames.pose_difference(result.T_s1_w, record.truth_T_s1_w)[0], float(np.linalg.norm(moved)))
-    return {"source": source, "result": result_to_dict(record, result, elapsed_ms), "truth_error": truth_error}
+    result, truth_error = solve_record(data, method, robust=robust, false_alarm_rate=false_alarm_rate)
+    if result.get("status") == "error":
+        result["error"]["message"] = f"{source}: {result['error']['message']}"
+    return {"source": source, "result": result, "truth_error": truth_error}
 
 
 # --- reading ------------------------------------------------------------------------------------
@@ -325,7 +300,7 @@ class _TableReport:
             f"{result['sigma_trans_mm']:.3f}",
             "" if truth is None else f"{truth[0]:.4f} {truth[1]:.3f}",
             f"{result['time_ms']:.1f}",
-            _xyzabc(result.get("base_offset_xyzabc")),
+            fmt.xyzabc(result.get("base_offset_xyzabc")),
         ]))
 
     def _line(self, cells: list[str]) -> str:
@@ -338,10 +313,3 @@ class _TableReport:
     def _print(console: Any, line: str) -> None:
         console.print(line, markup=False, highlight=False, soft_wrap=True)
         console.file.flush()
-
-
-def _xyzabc(values: list[float] | None) -> str:
-    if values is None:
-        return ""
-    x, y, z, a, b, c = np.asarray(values, dtype=float)
-    return f"{x:.3f} {y:.3f} {z:.3f}, {a:.4f} {b:.4f} {c:.4f}"

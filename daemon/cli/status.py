@@ -15,21 +15,12 @@ from typing import Annotated, Any
 
 import typer
 
-from monoguide.daemon.cli._console import stderr_console, stdout_console
-from monoguide.daemon.cli.journal import (
-    JsonOption,
-    StateDirOption,
-    cycle_summary,
-    open_journal,
-    print_cycle_lines,
-    reporting_errors,
-)
-from monoguide.daemon.service._journal import JOURNAL_FILE, JournalRow
-from monoguide.daemon.service._state_dir import existing_state_dir
-from monoguide.daemon.service._status import ServiceStatus, liveness, read_status
+from monoguide.daemon.cli import _format as fmt
+from monoguide.daemon.cli._console import stdout_console
+from monoguide.daemon.cli._policy import EXIT_NOT_RUNNING, fail, reporting_errors
+from monoguide.daemon.cli.journal import JsonOption, StateDirOption, cycle_summary, open_journal, print_cycle_lines
+from monoguide.daemon.service import JOURNAL_FILE, JournalRow, ServiceStatus, existing_state_dir, liveness, read_status
 from monoguide.solver.errors import MonoguideError
-
-EXIT_NOT_RUNNING = 3  # as `systemctl status` for an inactive unit (LSB: program is not running)
 
 
 def status(
@@ -48,9 +39,7 @@ def status(
     else:
         _print_report(report)
     if report["journal_error"] is not None:
-        error = report["journal_error"]
-        stderr_console().print(f"{error.code} {error.message}", markup=False, highlight=False, soft_wrap=True)
-        raise typer.Exit(1)
+        fail(report["journal_error"])
     if not report["liveness"].running:
         raise typer.Exit(EXIT_NOT_RUNNING)
 
@@ -89,7 +78,7 @@ def _last_result(result: dict[str, Any]) -> str:
         words[0] += f" {result['error_code']}"
     words += [f"{key.replace('_', ' ')} {result[key]}" for key in ("job", "part_tag") if result.get(key) is not None]
     if isinstance(result.get("finished_at"), int | float):
-        words.append(f"finished {_clock(result['finished_at'])}")
+        words.append(f"finished {fmt.local_time(result['finished_at'])}")
     return ", ".join(words)
 
 
@@ -100,7 +89,7 @@ def _print_report(report: dict[str, Any]) -> None:
     if service is not None:
         now = time.time()
         word = "state" if report["liveness"].running else "last state"
-        lines.append(f"  {word}: {service.state} since {_clock(service.since)} ({now - service.since:.0f} s),"
+        lines.append(f"  {word}: {service.state} since {fmt.local_time(service.since)} ({now - service.since:.0f} s),"
                      f" status written {now - service.updated_at:.1f} s ago")
         if service.fault:
             lines.append(f"  FAULT: {service.fault.get('code')} ({service.fault.get('plc_code')}): "
@@ -119,7 +108,3 @@ def _print_report(report: dict[str, Any]) -> None:
         out.print(line, markup=False, highlight=False, soft_wrap=True)
     if report["rows"]:
         print_cycle_lines(report["rows"])
-
-
-def _clock(unix_s: float) -> str:
-    return time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(unix_s))

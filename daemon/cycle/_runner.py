@@ -40,7 +40,7 @@ import cv2
 import numpy as np
 
 from monoguide.daemon.assembly import taught_flange_poses
-from monoguide.daemon.config._cell import CellConfig, ChecksConfig
+from monoguide.daemon.config import CellConfig, ChecksConfig
 from monoguide.daemon.errors import CapturePoseMismatch
 from monoguide.drivers.camera import Camera, CameraSettings, Frame
 from monoguide.drivers.errors import ConfigError, DeviceError, PlcUnknownJob
@@ -59,10 +59,6 @@ log = logging.getLogger(__name__)
 
 ROI_MARGIN_PX = 24.0  # beyond the envelope's spread and the hole's own size
 PNG_COMPRESSION = 1  # fast: a 5 MP frame in ~0.1 s
-# Long-lived workers (not a new thread per cycle): one finds holes while the robot moves, one writes the PNGs
-# off the cycle's path (the last view's image would otherwise sit between the last frame and the offset write).
-_FINDER = ThreadPoolExecutor(1, thread_name_prefix="monoguide-holes")
-_IMAGE_WRITER = ThreadPoolExecutor(1, thread_name_prefix="monoguide-images")
 _M_MMAP_THRESHOLD, _M_ARENA_MAX = -3, -8  # glibc mallopt(3) parameters
 MMAP_THRESHOLD_BYTES = 1 << 20
 MALLOC_ARENAS = 2
@@ -138,7 +134,11 @@ class CycleRunner:
     """The blocking steps of a cycle on opened devices; one runner serves every cycle on the same camera and
     robot (the service builds a new one when a device was reopened). Building it plans the views (~0.1 s, off
     the cycle's path); the camera is configured at the first :meth:`measure` and again after a failed grab.
-    ``images_dir`` may be changed between cycles (the service gives each cycle its own folder)."""
+    ``images_dir`` may be changed between cycles (the service gives each cycle its own folder).
+
+    The runner owns two worker threads, kept for every cycle (not a new thread per cycle): one finds holes while
+    the robot moves, one writes the PNGs off the cycle's path (the last view's image would otherwise sit between
+    the last frame and the offset write). :meth:`close` (or leaving ``with``) ends them."""
 
     def __init__(self, config: CellConfig, camera: Camera, robot: Robot, images_dir: Path | None = None) -> None:
         if config.reference.T_cf_b is None:
@@ -152,6 +152,19 @@ class CycleRunner:
         self._template = self._record_template()
         self._views = tuple(self._plan_view(i) for i in range(len(config.measuring_poses)))
         self._camera_configured = False
+        self._finder = ThreadPoolExecutor(1, thread_name_prefix="monoguide-holes")
+        self._image_writer = ThreadPoolExecutor(1, thread_name_prefix="monoguide-images")
+
+    def close(self) -> None:
+        """End the worker threads (a PNG still being written is finished first)."""
+        self._finder.shutdown(wait=True, cancel_futures=True)
+        self._image_writer.shutdown(wait=True)
+
+    def __enter__(self) -> CycleRunner:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
 
     # --- the four steps ---------------------------------------------------------------------------
 
@@ -184,8 +197,8 @@ class CycleRunner:
                 timings["exposure"] += last_frame_at - t1
                 path = self._image_path(poses[i].name)
                 if path is not None:
-                    images.append(_IMAGE_WRITER.submit(_save_png, path, frame.image, poses[i].name))
-                futures.append(_FINDER.submit(self._find, i, frame, np.array(status.T_b_f, dtype=float), path))
+                    images.append(self._image_writer.submit(_save_png, path, frame.image, poses[i].name))
+                futures.append(self._finder.submit(self._find, i, frame, np.array(status.T_b_f, dtype=float), path))
             captures = []
             for future in futures:
                 while True:  # every wait has a way out: the abort

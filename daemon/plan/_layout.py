@@ -15,7 +15,7 @@ import numpy as np
 import tomlkit
 import tomlkit.exceptions
 
-from monoguide.daemon.config._cell import CellConfig, LayoutConfig, load_cell_config
+from monoguide.daemon.config import CellConfig, LayoutConfig, load_cell_config
 from monoguide.drivers.atomic_file import write_atomic
 from monoguide.drivers.errors import ConfigError
 from monoguide.drivers.toml_format import commented, matrix, replace_section

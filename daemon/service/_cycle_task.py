@@ -18,8 +18,8 @@ import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from monoguide.daemon.cycle._runner import CycleAborted
-from monoguide.daemon.cycle._states import Cause, CycleError, State
+from monoguide.daemon.cycle import Cause, State
+from monoguide.daemon.errors import CycleAborted, CycleError
 from monoguide.daemon.service._journal import CycleEntry
 from monoguide.daemon.service._plc_link import ZERO_OFFSET, ZERO_QUALITY
 from monoguide.drivers.errors import DeviceError, PlcHeartbeatLost, PlcTriggerDropped, RobotOffsetUnconfirmed
@@ -73,6 +73,8 @@ async def run_stages(service: _Service, inputs: PlcInputs) -> Outcome:
             images_dir = service.journal.images_dir / f"cycle-{service.journal.next_number()}"
         devices = (service.devices.handle("camera"), service.devices.handle("robot"))
         if service.runner is None or service.runner_devices != devices:  # first cycle, or a device reopened
+            if service.runner is not None:
+                service.runner.close()
             service.runner = service.runner_factory(service.config, *devices, images_dir)
             service.runner_devices = devices
         runner = service.runner

@@ -26,8 +26,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from monoguide.daemon.config._cell import CellConfig, ServiceConfig, require_sections
-from monoguide.daemon.cycle._states import CYCLE_STATES, Cause, CycleError, CycleStateMachine, State
+from monoguide.daemon.config import CellConfig, ServiceConfig, require_sections
+from monoguide.daemon.cycle import CYCLE_STATES, Cause, CycleStateMachine, State
+from monoguide.daemon.errors import CycleError
 from monoguide.daemon.service._devices import BACKOFF_S, CellDevices, cell_devices
 from monoguide.daemon.service._journal import Journal
 from monoguide.daemon.service._offsets import OffsetLedger
@@ -59,7 +60,7 @@ async def run_service(config: CellConfig, state_dir: Path, *, stop: asyncio.Even
     :class:`monoguide.daemon.cycle._runner.CycleRunner`); tests of the handshake alone pass their own.
     """
     require_sections(config, ("plc",), command="run")
-    from monoguide.daemon.cycle._runner import tune_malloc
+    from monoguide.daemon.cycle import tune_malloc
 
     tune_malloc()  # frame-sized buffers back to the system when freed: resident memory stays flat (docs/cycle.md)
     if plc is None:
@@ -73,13 +74,13 @@ async def run_service(config: CellConfig, state_dir: Path, *, stop: asyncio.Even
 
 
 def _cycle_runner(config: CellConfig, camera: Any, robot: Any, images_dir: Path | None) -> Any:
-    from monoguide.daemon.cycle._runner import CycleRunner
+    from monoguide.daemon.cycle import CycleRunner
 
     return CycleRunner(config, camera, robot, images_dir)
 
 
 def _cycle_aborted(why: str) -> MonoguideError:
-    from monoguide.daemon.cycle._runner import CycleAborted
+    from monoguide.daemon.errors import CycleAborted
 
     return CycleAborted(why)
 
@@ -481,6 +482,8 @@ class _Service:
             await self.plc.close()
         self.plc_connected = False  # a stopped service shows no device connected
         await self.devices.close()
+        if self.runner is not None:
+            self.runner.close()
         self.since = time.time()
         self._write_status_file()
         self.journal.close()

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from monoguide.daemon.cycle._states import CYCLE_STATES, State
+from monoguide.daemon.cycle import CYCLE_STATES, State
 from monoguide.drivers.plc_registers import Control, CycleResult, Status
 
 POLL_S = 0.02  # the PLC's registers 0-3 are read this often

@@ -17,7 +17,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from monoguide.daemon.cycle._states import State
+from monoguide.daemon.cycle import State
 from monoguide.daemon.errors import ServiceStatusInvalid
 from monoguide.drivers.atomic_file import write_atomic
 

@@ -37,8 +37,8 @@ from typing import Any
 import tomlkit
 import tomlkit.exceptions
 
-from monoguide.daemon.config._cell import load_cell_config
-from monoguide.daemon.plan._layout import cell_layout
+from monoguide.daemon.config import load_cell_config
+from monoguide.daemon.plan import cell_layout
 from monoguide.drivers.atomic_file import write_atomic
 from monoguide.drivers.errors import ConfigError
 from monoguide.drivers.toml_format import matrix

@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from monoguide.daemon.errors import SimulateChildEnded, SimulateTimeout
-from monoguide.daemon.service._journal import JOURNAL_FILE, Journal, JournalRow
+from monoguide.daemon.service import JOURNAL_FILE, Journal, JournalRow
 from monoguide.daemon.simulate._config import DerivedCell, derive_config
 from monoguide.daemon.simulate._summary import InjectedFault, read_truth_log
 from monoguide.drivers.errors import ConfigError

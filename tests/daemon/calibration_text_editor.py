@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from monoguide.daemon.calibrate._file import CalibrationFileUneditable
+from monoguide.daemon.errors import CalibrationFileUneditable
 from monoguide.drivers.toml_format import MATRIX_DECIMALS
 
 

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from monoguide.daemon.assembly import read_sim_state
-from monoguide.daemon.calibrate._rig import CalibrationOptions
-from monoguide.daemon.calibrate._sim import SimRigConfigError, open_sim_rig
-from monoguide.daemon.config._cell import load_cell_config
+from monoguide.daemon.calibrate import CalibrationOptions, open_sim_rig
+from monoguide.daemon.config import load_cell_config
+from monoguide.daemon.errors import SimRigConfigError
 from monoguide.solver.frames import compose, invert, pose_difference, transform_points
 
 SIM_CELL = Path(__file__).parents[2] / "config" / "sim-cell.toml"

@@ -17,16 +17,19 @@ import pytest
 from simcell_helpers import start_sim_tracker, stop
 
 from monoguide.daemon.assembly import build_sim_cell
-from monoguide.daemon.calibrate._rig import (
+from monoguide.daemon.calibrate import (
     PLACE_PART,
     PLACE_SMR,
     PLACE_TARGET,
     REMOVE_TARGET,
     CalibrationOptions,
     CalibrationRig,
+    run_accuracy,
+    run_part,
+    run_sfi,
+    run_verify,
 )
-from monoguide.daemon.calibrate._steps_camera import run_accuracy, run_part, run_sfi, run_verify
-from monoguide.daemon.config._cell import CellConfig, load_cell_config
+from monoguide.daemon.config import CellConfig, load_cell_config
 from monoguide.drivers.camera import Frame
 from monoguide.drivers.sim.camera import SimCamera
 from monoguide.drivers.sim.cell import SimCell, deviated_part

@@ -21,19 +21,16 @@ import pytest
 import tomlkit
 from calibration_text_editor import edit_calibration_text
 
-from monoguide.daemon.calibrate._file import (
+from monoguide.daemon.calibrate import open_session, read_calibration_provenance, write_calibration
+from monoguide.daemon.calibrate._file import _calibrated_values, _provenance
+from monoguide.daemon.cli.calibrate import write_results
+from monoguide.daemon.config import load_cell_config
+from monoguide.daemon.errors import (
     CalibrationFileError,
     CalibrationFileRefused,
     CalibrationFileUneditable,
     CalibrationValueInvalid,
-    _calibrated_values,
-    _provenance,
-    read_calibration_provenance,
-    write_calibration,
 )
-from monoguide.daemon.calibrate._session import open_session
-from monoguide.daemon.cli.calibrate import write_results
-from monoguide.daemon.config._cell import load_cell_config
 from monoguide.drivers import atomic_file
 from monoguide.solver.frames import make_T, rotvec_to_matrix
 

@@ -10,9 +10,9 @@ import pytest
 from figure_checks import assert_readable, capture, unit
 from PIL import Image
 
+from monoguide.daemon.calibrate import CHART_SIZE, FIGURES, PLAN_SIZE, REPORT_NAME, TRUTH_FIGURE, write_report
 from monoguide.daemon.calibrate import _report as calibration_report
-from monoguide.daemon.calibrate._report import CHART_SIZE, FIGURES, PLAN_SIZE, REPORT_NAME, TRUTH_FIGURE, write_report
-from monoguide.daemon.config._cell import load_cell_config
+from monoguide.daemon.config import load_cell_config
 
 CONFIG_PATH = Path(__file__).parents[2] / "config" / "sim-cell.toml"
 STEPS = ("intrinsics", "cell", "base", "part", "sfi", "verify", "accuracy")

@@ -23,25 +23,22 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from monoguide.daemon.calibrate._rig import (
+from monoguide.daemon.calibrate import (
     ACTIONS,
     MOUNT_FLANGE_SMR,
     PLACE_SMR,
+    SESSION_FILE,
     SHOW_PLATE,
-    CalibrationAborted,
     CalibrationOptions,
     CalibrationRig,
-    ConsoleOperator,
-)
-from monoguide.daemon.calibrate._session import (
-    SESSION_FILE,
     CalibrationSession,
-    CalibrationSessionInvalid,
+    ConsoleOperator,
     open_session,
 )
 from monoguide.daemon.cli import app
 from monoguide.daemon.cli.calibrate import EXIT_INTERRUPTED, EXIT_OK, EXIT_REFUSED, plan_steps, run_steps
-from monoguide.daemon.config._cell import CellConfig, CellFrameConfig, load_cell_config
+from monoguide.daemon.config import CellConfig, CellFrameConfig, load_cell_config
+from monoguide.daemon.errors import CalibrationAborted, CalibrationSessionInvalid
 from monoguide.drivers.camera import CameraIdentity, CameraSettings, Frame
 from monoguide.drivers.robot import RobotIdentity, RobotStatus
 from monoguide.drivers.sim.cell import TARGETS_FORMAT

@@ -13,9 +13,8 @@ import pytest
 from typer.testing import CliRunner
 
 from monoguide.daemon.cli import app
-from monoguide.daemon.config._cell import load_cell_config
-from monoguide.daemon.service._journal import JOURNAL_FILE, CycleEntry, Journal
-from monoguide.daemon.service._state_dir import DEFAULT_STATE_DIR, state_dir
+from monoguide.daemon.config import load_cell_config
+from monoguide.daemon.service import DEFAULT_STATE_DIR, JOURNAL_FILE, CycleEntry, Journal, state_dir
 from monoguide.drivers.errors import DeviceTimeout
 from monoguide.solver import frames
 from monoguide.solver.pose import solve_pose

@@ -15,9 +15,8 @@ from typer.testing import CliRunner
 
 from monoguide.daemon.cli import app
 from monoguide.daemon.cli.plan import MAP_SIZE, _render_map
-from monoguide.daemon.config._cell import load_cell_config
-from monoguide.daemon.plan._drawing import LAYOUT_SIZE, draw_layout
-from monoguide.daemon.plan._layout import cell_layout
+from monoguide.daemon.config import load_cell_config
+from monoguide.daemon.plan import LAYOUT_SIZE, cell_layout, draw_layout
 from monoguide.drivers.sim.cell import part_deviation
 from monoguide.solver.camera import PAPER_CAMERA
 from monoguide.solver.frames import compose, invert

@@ -21,7 +21,7 @@ from typer.testing import CliRunner
 from monoguide.daemon.assembly import build_sim_cell
 from monoguide.daemon.cli import app
 from monoguide.daemon.cli.probe import PROBES, Device
-from monoguide.daemon.config._cell import load_cell_config
+from monoguide.daemon.config import load_cell_config
 
 CONFIG_DIR = Path(__file__).parents[2] / "config"
 SIM_CELL = CONFIG_DIR / "sim-cell.toml"

@@ -25,7 +25,7 @@ from simcell_helpers import SIM_CELL, START_S, cell_config, start_sim_cell, stop
 
 from monoguide.daemon.assembly import build_robot, build_sim_cell
 from monoguide.daemon.cli.simcell import FAULT_COMMANDS
-from monoguide.daemon.config._cell import CellConfig, load_cell_config
+from monoguide.daemon.config import CellConfig, load_cell_config
 from monoguide.drivers.errors import RobotProtectiveStop
 from monoguide.drivers.modbus_plc import ModbusPlc
 from monoguide.drivers.plc_registers import CycleResult, PlcInputs, PlcOutputs, Status

@@ -18,13 +18,21 @@ import pytest
 from figure_checks import assert_readable, capture, unit
 from PIL import Image
 
-from monoguide.daemon.config._cell import load_cell_config
-from monoguide.daemon.service._journal import CycleEntry, Journal
+from monoguide.daemon.config import load_cell_config
+from monoguide.daemon.service import CycleEntry, Journal
+from monoguide.daemon.simulate import (
+    InjectedFault,
+    Targets,
+    derive_config,
+    dumps_toml,
+    fault_plan,
+    join_cycles,
+    read_truth_log,
+    sample_process,
+    summarize,
+    write_report,
+)
 from monoguide.daemon.simulate import _report as simulate_report
-from monoguide.daemon.simulate._config import derive_config, dumps_toml
-from monoguide.daemon.simulate._report import write_report
-from monoguide.daemon.simulate._run import fault_plan, sample_process
-from monoguide.daemon.simulate._summary import InjectedFault, Targets, join_cycles, read_truth_log, summarize
 from monoguide.drivers.errors import ConfigError, DeviceTimeout, PlcTriggerDropped, RobotAckTimeout
 
 ROOT = Path(__file__).parents[2]

@@ -12,8 +12,15 @@ from pathlib import Path
 from typer.testing import CliRunner
 
 from monoguide.daemon.cli import app
-from monoguide.daemon.service._journal import CycleEntry, Journal
-from monoguide.daemon.service._status import STATUS_FILE, DeviceStatus, ServiceStatus, read_status, write_status
+from monoguide.daemon.service import (
+    STATUS_FILE,
+    CycleEntry,
+    DeviceStatus,
+    Journal,
+    ServiceStatus,
+    read_status,
+    write_status,
+)
 
 
 def _status(directory: Path, **changes) -> ServiceStatus:

@@ -8,12 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from monoguide.daemon.config._cell import (
-    ConfigMissingKey,
-    ConfigUnknownKey,
-    ConfigUnknownSection,
-    load_cell_config,
-)
+from monoguide.daemon.config import load_cell_config
+from monoguide.daemon.errors import ConfigMissingKey, ConfigUnknownKey, ConfigUnknownSection
 from monoguide.drivers.errors import ConfigError
 from monoguide.solver.frames import compose
 

@@ -17,8 +17,9 @@ from typing import Any
 
 import pytest
 
+from monoguide.daemon.config import BOUNDS, CellConfig, load_cell_config, require_sections
 from monoguide.daemon.config import _reader as config_reader
-from monoguide.daemon.config._cell import BOUNDS, CellConfig, ConfigMissingKey, load_cell_config, require_sections
+from monoguide.daemon.errors import ConfigMissingKey
 from monoguide.drivers.errors import ConfigError
 
 ROOT = Path(__file__).parents[2]

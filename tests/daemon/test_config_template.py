@@ -11,8 +11,8 @@ from typing import Any
 
 import pytest
 
+from monoguide.daemon.config import OPTIONAL_SECTIONS, REQUIRED_SECTIONS, load_cell_config
 from monoguide.daemon.config import _reader as config_reader
-from monoguide.daemon.config._cell import OPTIONAL_SECTIONS, REQUIRED_SECTIONS, load_cell_config
 
 TEMPLATE = Path(__file__).parents[2] / "config" / "cell-template.toml"
 NOT_IN_TEMPLATE = {"sim"}  # the simulated cell's own section (config/sim-cell.toml)

@@ -18,8 +18,9 @@ import pytest
 from simcell_helpers import cell_config, start_sim_cell, stop
 
 from monoguide.daemon.assembly import build_camera, build_robot
-from monoguide.daemon.config._cell import CellConfig, ChecksConfig, load_cell_config
-from monoguide.daemon.cycle._runner import CapturePoseMismatch, CycleAborted, CycleRunner
+from monoguide.daemon.config import CellConfig, ChecksConfig, load_cell_config
+from monoguide.daemon.cycle import CycleRunner
+from monoguide.daemon.errors import CapturePoseMismatch, CycleAborted
 from monoguide.drivers.camera import Camera
 from monoguide.drivers.errors import PlcUnknownJob
 from monoguide.drivers.robot import Robot

@@ -7,14 +7,8 @@ import logging
 
 import pytest
 
-from monoguide.daemon.cycle._states import (
-    ERROR_CAUSES,
-    TRANSITIONS,
-    Cause,
-    CycleStateMachine,
-    IllegalTransition,
-    State,
-)
+from monoguide.daemon.cycle import ERROR_CAUSES, TRANSITIONS, Cause, CycleStateMachine, State
+from monoguide.daemon.errors import IllegalTransition
 from monoguide.drivers.errors import DeviceTimeout
 from monoguide.solver.errors import MonoguideError
 

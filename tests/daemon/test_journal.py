@@ -14,9 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from monoguide.daemon.service._journal import (
-    CycleEntry,
-    Journal,
+from monoguide.daemon.errors import (
     JournalEntryInvalid,
     JournalEntryMissing,
     JournalError,
@@ -24,6 +22,7 @@ from monoguide.daemon.service._journal import (
     JournalReplaced,
     JournalSchemaUnknown,
 )
+from monoguide.daemon.service import CycleEntry, Journal
 from monoguide.drivers.errors import DeviceTimeout
 
 EXAMPLE_RECORD = Path(__file__).parents[2] / "examples" / "example-record.json"
@@ -32,7 +31,7 @@ EXAMPLE_RECORD = Path(__file__).parents[2] / "examples" / "example-record.json"
 # without trusting anything the child (or the journal) says. Shared verbatim with the child process.
 EXPECTED_CYCLE = textwrap.dedent("""
     def expected_entry(n, record):
-        from monoguide.daemon.service._journal import CycleEntry
+        from monoguide.daemon.service import CycleEntry
         from monoguide.drivers.errors import DeviceTimeout
         record = dict(record, id=f"part-{n}")
         failed = n % 5 == 0
@@ -52,7 +51,7 @@ expected_entry = namespace["expected_entry"]
 
 WRITER = EXPECTED_CYCLE + textwrap.dedent("""
     import json, sys
-    from monoguide.daemon.service._journal import Journal
+    from monoguide.daemon.service import Journal
     record = json.load(open(sys.argv[2]))
     journal = Journal(sys.argv[1])
     while True:

@@ -8,7 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from monoguide.daemon.config._cell import ConfigError, load_cell_config
+from monoguide.daemon.config import load_cell_config
+from monoguide.daemon.errors import ConfigError
 
 ROOT = Path(__file__).parents[2]
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from monoguide.daemon.service._sd_notify import Notifier, NotifySocketInvalid, watchdog_interval_s
+from monoguide.daemon.errors import NotifySocketInvalid
+from monoguide.daemon.service import Notifier, watchdog_interval_s
 
 
 @pytest.fixture

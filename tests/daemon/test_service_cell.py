@@ -22,7 +22,7 @@ import pytest
 from simcell_helpers import SIM_CELL, cell_config, keep_reading, start_sim_cell, stop
 from test_service_handshake import Line, _record_status_writes, _sync
 
-from monoguide.daemon.service._journal import Journal
+from monoguide.daemon.service import Journal
 from monoguide.drivers.errors import DeviceDisconnected, PlcTriggerDropped, RobotOffsetUnconfirmed
 from monoguide.drivers.plc_registers import Control, Status
 from monoguide.drivers.sim.plc import PlcServer

@@ -21,12 +21,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from monoguide.daemon.config._cell import load_cell_config
-from monoguide.daemon.cycle._runner import CycleAborted
-from monoguide.daemon.service._devices import CellDevices, DeviceSlot
-from monoguide.daemon.service._journal import Journal
-from monoguide.daemon.service._loop import run_service
-from monoguide.daemon.service._status import liveness, read_status
+from monoguide.daemon.config import load_cell_config
+from monoguide.daemon.errors import CycleAborted
+from monoguide.daemon.service import CellDevices, DeviceSlot, Journal, liveness, read_status, run_service
 from monoguide.drivers.errors import (
     DeviceDisconnected,
     DeviceNotFound,
@@ -84,6 +81,9 @@ class StandIn:
 
     def factory(self, _config: Any, _camera: Any, _robot: Any, _images: Any) -> StandIn:
         return self
+
+    def close(self) -> None:
+        return None
 
     def measure(self, job: int, abort: threading.Event, abort_error: Callable[[], Exception]) -> Any:
         while not self.release.wait(0.01):

@@ -22,10 +22,9 @@ from typing import Any
 import pytest
 from test_service_handshake import OFFSET, WAIT_S, Line, StandIn, _cell, _config, _sync
 
-from monoguide.daemon.config._cell import load_cell_config
-from monoguide.daemon.service._devices import CellDevices, DeviceSlot
-from monoguide.daemon.service._journal import Journal, JournalError, JournalReplaced
-from monoguide.daemon.service._loop import run_service
+from monoguide.daemon.config import load_cell_config
+from monoguide.daemon.errors import JournalError, JournalReplaced
+from monoguide.daemon.service import CellDevices, DeviceSlot, Journal, run_service
 from monoguide.drivers.errors import (
     DeviceDisconnected,
     DeviceNotFound,
@@ -153,7 +152,7 @@ def _set_counter(state_dir: Path, counter: int) -> None:
 
 
 def _failed_entry() -> Any:
-    from monoguide.daemon.service._journal import CycleEntry
+    from monoguide.daemon.service import CycleEntry
 
     return CycleEntry(started_at=1.0, finished_at=2.0, job=1, part_tag=1, error=DeviceDisconnected("camera gone"))
 
@@ -457,7 +456,7 @@ async def test_a_status_word_overwritten_by_someone_else_is_restored(tmp_path: P
 
 def test_the_ledger_is_not_fooled_by_another_request(tmp_path: Path) -> None:
     """A robot holding another request's offset (an older one) did not take this cycle's."""
-    from monoguide.daemon.service._offsets import OffsetLedger
+    from monoguide.daemon.service import OffsetLedger
 
     with Journal(tmp_path) as journal:
         journal.commit_intent(1, 41, OFFSET, [])

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from monoguide.daemon.assembly import build_sim_cell
-from monoguide.daemon.config._cell import load_cell_config
+from monoguide.daemon.config import load_cell_config
 from monoguide.drivers.errors import (
     DeviceDisconnected,
     DeviceError,

@@ -15,7 +15,7 @@ import pytest
 from robot_helpers import ADAPTER_OPTIONS, SIM_CELL, stopping
 
 from monoguide.daemon.assembly import build_sim_cell
-from monoguide.daemon.config._cell import load_cell_config
+from monoguide.daemon.config import load_cell_config
 from monoguide.drivers.errors import RobotCommandRejected
 from monoguide.drivers.kuka_robot import KukaRobot
 from monoguide.drivers.sim.calibration_scene import SimOperator

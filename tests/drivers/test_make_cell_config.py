@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from monoguide.daemon.assembly import sim_cell_spec
-from monoguide.daemon.config._cell import load_cell_config
+from monoguide.daemon.config import load_cell_config
 from monoguide.drivers.sim.camera import SimCamera
 from monoguide.drivers.sim.cell import SimCell, part_deviation
 from monoguide.drivers.sim.hole_renderer import RenderSettings

@@ -20,7 +20,8 @@ from typing import Any
 
 import pytest
 
-from monoguide.daemon.config._cell import ConfigError, ConfigMissingKey, load_cell_config
+from monoguide.daemon.config import load_cell_config
+from monoguide.daemon.errors import ConfigError, ConfigMissingKey
 from monoguide.drivers.errors import (
     DeviceDisconnected,
     DeviceProtocolError,

@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from monoguide.daemon.assembly import build_robot
-from monoguide.daemon.config._cell import load_cell_config
-from monoguide.daemon.simulate._summary import read_truth_log, summarize
+from monoguide.daemon.config import load_cell_config
+from monoguide.daemon.simulate import read_truth_log, summarize
 from monoguide.drivers.modbus_plc import ModbusPlc
 from monoguide.drivers.plc_registers import CycleResult, PlcInputs, Status
 from monoguide.drivers.sim.robot_motion import read_truth

@@ -19,7 +19,8 @@ from typer.testing import CliRunner
 
 from monoguide.daemon.assembly import build_sim_cell
 from monoguide.daemon.cli import app
-from monoguide.daemon.config._cell import ConfigError, load_cell_config
+from monoguide.daemon.config import load_cell_config
+from monoguide.daemon.errors import ConfigError
 from monoguide.solver.frames import pose_difference
 
 SIM_CELL = Path(__file__).parents[2] / "config" / "sim-cell.toml"

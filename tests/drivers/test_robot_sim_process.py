@@ -15,7 +15,7 @@ import pytest
 from robot_helpers import ADAPTER_OPTIONS, assert_within_repeatability, sim_cell, stopping, taught_poses
 
 from monoguide.daemon.assembly import build_sim_cell
-from monoguide.daemon.config._cell import load_cell_config
+from monoguide.daemon.config import load_cell_config
 from monoguide.drivers.errors import DeviceTimeout
 from monoguide.drivers.kuka_robot import KukaRobot
 from monoguide.drivers.sim.robot_process import CONTROLLER_MODULES, start_controller

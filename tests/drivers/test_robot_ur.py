@@ -31,7 +31,7 @@ from robot_helpers import (
 from scipy.spatial.transform import Rotation
 
 from monoguide.daemon.assembly import build_sim_cell
-from monoguide.daemon.config._cell import load_cell_config
+from monoguide.daemon.config import load_cell_config
 from monoguide.drivers import rtde_protocol as rtde
 from monoguide.drivers.errors import (
     DeviceBusy,

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from monoguide.daemon.assembly import sim_cell_spec
-from monoguide.daemon.config._cell import load_cell_config
+from monoguide.daemon.config import load_cell_config
 from monoguide.drivers.camera import Camera, CameraSettings
 from monoguide.drivers.errors import DeviceDisconnected, DeviceSettingRejected, DeviceTimeout
 from monoguide.drivers.sim.camera import SimCamera

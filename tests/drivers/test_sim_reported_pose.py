@@ -13,7 +13,7 @@ import pytest
 from robot_helpers import stopping
 
 from monoguide.daemon.assembly import build_sim_cell
-from monoguide.daemon.config._cell import load_cell_config
+from monoguide.daemon.config import load_cell_config
 from monoguide.drivers.kuka_robot import KukaRobot
 from monoguide.drivers.sim.cell import SimCell
 from monoguide.drivers.sim.robot_process import start_controller

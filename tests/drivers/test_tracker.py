@@ -18,7 +18,7 @@ import pytest
 import serial
 
 from monoguide.daemon.assembly import build_sim_cell
-from monoguide.daemon.config._cell import load_cell_config
+from monoguide.daemon.config import load_cell_config
 from monoguide.drivers.errors import (
     DeviceBusy,
     DeviceDisconnected,

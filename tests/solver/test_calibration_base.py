@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from monoguide.daemon.assembly import build_sim_cell
-from monoguide.daemon.config._cell import load_cell_config
+from monoguide.daemon.config import load_cell_config
 from monoguide.drivers.sim.target_renderer import base_calibration_poses, tracker_reading
 from monoguide.solver.calibration.base import fit_robot_base
 from monoguide.solver.calibration.errors import (

@@ -11,7 +11,7 @@ from dataclasses import replace
 import numpy as np
 
 from monoguide.daemon.assembly import build_sim_cell
-from monoguide.daemon.config._cell import load_cell_config
+from monoguide.daemon.config import load_cell_config
 from monoguide.drivers.sim.cell import SimCell
 from monoguide.drivers.sim.target_renderer import base_calibration_poses, place_target, tracker_reading
 from monoguide.solver.calibration.base import fit_robot_base

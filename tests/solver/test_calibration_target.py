@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from monoguide.daemon.assembly import build_sim_cell
-from monoguide.daemon.config._cell import load_cell_config
+from monoguide.daemon.config import load_cell_config
 from monoguide.drivers.sim.target_renderer import render_target
 from monoguide.solver.calibration.errors import CalibrationImageRejected
 from monoguide.solver.calibration.target import (
