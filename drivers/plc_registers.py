@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from enum import IntFlag
 from typing import Literal
@@ -212,14 +212,16 @@ def encode_inputs(inputs: PlcInputs) -> list[int]:
             uint16_word(inputs.plc_heartbeat, PLC_HEARTBEAT), uint16_word(inputs.part_tag, PART_TAG)]
 
 
-def check_job(inputs: PlcInputs, job_count: int) -> int:
-    """The job number if it selects one of the config's ``job_count`` part entries (numbered from 1); else
-    :class:`PlcValueInvalid` (0) or :class:`PlcUnknownJob` naming register 1 and the value."""
+def check_job(inputs: PlcInputs, jobs: Collection[int]) -> int:
+    """The job number if it selects one of the config's part entries (``jobs``, numbered from 1); else
+    :class:`PlcValueInvalid` (0) or :class:`PlcUnknownJob` naming register 1, the value and the jobs there are."""
     if inputs.job == 0:
         raise PlcValueInvalid(f"register {JOB} (job number) = 0: jobs are numbered from 1")
-    if inputs.job > job_count:
-        raise PlcUnknownJob(f"register {JOB} (job number) = {inputs.job}: the config has {job_count} "
-                            f"part entr{'y' if job_count == 1 else 'ies'} (jobs 1..{job_count})")
+    if inputs.job not in jobs:
+        listed = ", ".join(str(j) for j in sorted(jobs))
+        raise PlcUnknownJob(f"register {JOB} (job number) = {inputs.job}: the config has {len(jobs)} "
+                            f"part entr{'y' if len(jobs) == 1 else 'ies'} (job{'' if len(jobs) == 1 else 's'} "
+                            f"{listed})")
     return inputs.job
 
 

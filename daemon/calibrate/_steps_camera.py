@@ -36,10 +36,14 @@ from monoguide.daemon.calibrate._rig import (
     REMOVE_TARGET,
     CalibrationRig,
 )
-from monoguide.daemon.calibrate._session import CalibrationStepNotReady
 from monoguide.daemon.config import CellConfig
 from monoguide.daemon.cycle import CycleRunner
-from monoguide.daemon.errors import CalibrationMeasurementFailed, CalibrationNoTarget, CycleAborted
+from monoguide.daemon.errors import (
+    CalibrationMeasurementFailed,
+    CalibrationNoTarget,
+    CalibrationStepNotReady,
+    CycleAborted,
+)
 from monoguide.drivers.errors import ConfigError, DeviceError
 from monoguide.solver.calibration.averaging import mean_pose
 from monoguide.solver.calibration.cell import fit_part_frame

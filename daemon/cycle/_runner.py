@@ -43,7 +43,7 @@ from monoguide.daemon.assembly import taught_flange_poses
 from monoguide.daemon.config import CellConfig, ChecksConfig
 from monoguide.daemon.errors import CapturePoseMismatch
 from monoguide.drivers.camera import Camera, CameraSettings, Frame
-from monoguide.drivers.errors import ConfigError, DeviceError, PlcUnknownJob
+from monoguide.drivers.errors import ConfigError, DeviceError
 from monoguide.drivers.robot import Robot
 from monoguide.solver import frames
 from monoguide.solver.errors import MonoguideError, ResidualTooLarge, UncertaintyTooLarge
@@ -170,9 +170,7 @@ class CycleRunner:
 
     def measure(self, job: int, abort: threading.Event, abort_error: Callable[[], MonoguideError]) -> Measurement:
         """Visit every measuring pose; raise ``abort_error()`` when ``abort`` is set (checked before each
-        request and after each wait). Unknown ``job`` -> :class:`PlcUnknownJob`."""
-        if job != 1:
-            raise PlcUnknownJob(f"job {job}: the config has one part entry, job 1 ({self.config.name})")
+        request and after each wait). ``job`` has been checked by the caller (the service's job rule)."""
         timings = {"robot_motion": 0.0, "exposure": 0.0, "hole_finding": 0.0}
         with device_errors("camera"):
             self._configure_camera()

@@ -76,7 +76,8 @@ class TrackerState:
     fault: str = "NONE"
     fault_count: int = 0
     late_delay_s: float = 3.0
-    scheduled: list[tuple[float, int, bytes]] = field(default_factory=list)
+    scheduled: list[tuple[float, int, bytes]] = field(default_factory=list)  # (due, order, reply): a heap
+    replies_scheduled: int = 0  # each reply's order, so that two due at once never compare their bytes
     flange: FlangeSmr | None = None
 
 
@@ -261,13 +262,10 @@ def _set_fault(state: TrackerState, request: Request) -> bytes:
     return encode_ok(request.tag, state.fault, str(count))
 
 
-_sequence = [0]
-
-
 def _schedule(state: TrackerState, reply: tuple[float, bytes] | None) -> None:
     if reply is not None:
-        _sequence[0] += 1
-        heapq.heappush(state.scheduled, (time.monotonic() + reply[0], _sequence[0], reply[1]))
+        state.replies_scheduled += 1
+        heapq.heappush(state.scheduled, (time.monotonic() + reply[0], state.replies_scheduled, reply[1]))
 
 
 def _reload_if_changed(state: TrackerState, targets_path: Path, seen: list[tuple[int, int, int]]) -> None:

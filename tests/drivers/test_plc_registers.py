@@ -136,11 +136,12 @@ def test_inputs_need_four_words() -> None:
 
 
 def test_job_numbers() -> None:
-    assert check_job(decode_inputs([1, 1, 0, 0]), 1) == 1
+    assert check_job(decode_inputs([1, 1, 0, 0]), (1,)) == 1
     with pytest.raises(PlcValueInvalid, match=r"register 1 \(job number\) = 0"):
-        check_job(decode_inputs([1, 0, 0, 0]), 1)
-    with pytest.raises(PlcUnknownJob, match=r"register 1 \(job number\) = 3.*jobs 1..2"):
-        check_job(decode_inputs([1, 3, 0, 0]), 2)
+        check_job(decode_inputs([1, 0, 0, 0]), (1,))
+    with pytest.raises(PlcUnknownJob,
+                       match=r"register 1 \(job number\) = 3: the config has 2 part entries \(jobs 1, 2\)"):
+        check_job(decode_inputs([1, 3, 0, 0]), (1, 2))
 
 
 def test_status_bits_are_those_of_the_contract() -> None:
