@@ -29,7 +29,7 @@ from monoguide.drivers.modbus_plc import ModbusPlc
 from monoguide.drivers.plc import Plc
 from monoguide.drivers.robot import Robot
 from monoguide.drivers.tracker import LaserTracker, SerialLaserTracker
-from monoguide.solver.frames import compose, invert
+from monoguide.solver import frames
 
 if TYPE_CHECKING:
     from monoguide.drivers.sim.cell import SimCell, SimCellSpec
@@ -115,18 +115,9 @@ def build_plc(config: CellConfig) -> Plc:
 
 
 def taught_flange_poses(config: CellConfig) -> tuple[np.ndarray, ...]:
-    """``T_b_f`` of each measuring pose: as taught (``T_b_f``), else from the calibrated camera pose,
-    ``inv(T_cf_b) T_cf_si inv(T_f_c)``; empty when the config cannot say (then no pose check)."""
-    T_cf_b, T_f_c = config.reference.T_cf_b, config.camera.T_f_c
-    poses = []
-    for p in config.measuring_poses:
-        if p.T_b_f is not None:
-            poses.append(p.T_b_f)
-        elif T_cf_b is not None and T_f_c is not None:
-            poses.append(compose(invert(T_cf_b), p.T_cf_si, invert(T_f_c)))
-        else:
-            return ()
-    return tuple(poses)
+    """``T_b_f`` of each measuring pose of ``config`` (:func:`monoguide.solver.frames.taught_flange_poses`)."""
+    return frames.taught_flange_poses(config.reference.T_cf_b, config.camera.T_f_c,
+                                      [(p.T_b_f, p.T_cf_si) for p in config.measuring_poses])
 
 
 def sim_cell_spec(config: CellConfig) -> SimCellSpec:

@@ -59,13 +59,6 @@ class CycleAborted(CycleError):
     plc_code = 602
 
 
-class CapturePoseMismatch(CycleError):
-    """At a capture the robot's actual flange pose was farther from the taught measuring pose than
-    ``[robot] pose_tolerance_mm`` / ``pose_tolerance_deg``: the view is not the calibrated one."""
-
-    code = "CYCLE_CAPTURE_POSE_MISMATCH"
-    plc_code = 603
-
 
 class NotifySocketInvalid(MonoguideError):
     """``$NOTIFY_SOCKET`` is neither a path nor an abstract socket name (``@...``); e.g. a ``vsock:`` address."""

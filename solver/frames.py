@@ -7,6 +7,7 @@ are for the drivers, which speak the robot's units at the device boundary.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -206,3 +207,19 @@ def ur_pose_to_T(pose: np.ndarray) -> np.ndarray:
 def T_to_ur_pose(T: np.ndarray) -> np.ndarray:
     """4x4 transform in mm -> UR pose [x, y, z (m), rx, ry, rz (rad)]."""
     return np.concatenate([T[:3, 3] / 1000.0, matrix_to_rotvec(T[:3, :3])])
+
+
+def taught_flange_poses(T_cf_b: np.ndarray | None, T_f_c: np.ndarray | None,
+                        poses: Sequence[tuple[np.ndarray | None, np.ndarray]]) -> tuple[np.ndarray, ...]:
+    """``T_b_f`` (4, 4) of each measuring pose, given as (taught ``T_b_f`` or None, calibrated ``T_cf_si``): as
+    taught, else from the calibrated camera pose, ``inv(T_cf_b) T_cf_si inv(T_f_c)``. Empty when a pose has
+    neither (without ``T_cf_b`` or ``T_f_c``): then nobody can say where the flange should stand."""
+    out = []
+    for T_b_f, T_cf_si in poses:
+        if T_b_f is not None:
+            out.append(T_b_f)
+        elif T_cf_b is not None and T_f_c is not None:
+            out.append(compose(invert(T_cf_b), T_cf_si, invert(T_f_c)))
+        else:
+            return ()
+    return tuple(out)

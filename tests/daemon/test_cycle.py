@@ -20,7 +20,7 @@ from simcell_helpers import cell_config, start_sim_cell, stop
 from monoguide.daemon.assembly import build_camera, build_robot
 from monoguide.daemon.config import CellConfig, ChecksConfig, load_cell_config
 from monoguide.daemon.cycle import CycleRunner
-from monoguide.daemon.errors import CapturePoseMismatch, CycleAborted
+from monoguide.daemon.errors import CycleAborted
 from monoguide.drivers.camera import Camera
 from monoguide.drivers.robot import Robot
 from monoguide.drivers.sim.robot_motion import read_truth
@@ -129,11 +129,7 @@ def test_failing_cycles_write_nothing(failing_cell: Cell) -> None:
     with pytest.raises(OffsetOutOfEnvelope):
         tiny.check(measurement, solution)
 
-    # the same measurement against a robot tolerance tighter than its repeatability: the capture poses fail
-    assert cfg.robot is not None
-    strict_cfg = dataclasses.replace(cfg, robot=dataclasses.replace(cfg.robot, pose_tolerance_mm=1e-4))
-    with pytest.raises(CapturePoseMismatch, match="S1: the robot stood"):
-        CycleRunner(strict_cfg, cell.camera, cell.robot).check(measurement, solution)
+    # (a stop off the taught pose is the robot adapter's refusal, ROBOT_POSE_MISMATCH: tests/drivers)
 
     # part 3: the camera delivers black frames (a `camera black 8` command to sim-cell, through its state file)
     state = json.loads(cell.state.read_text())

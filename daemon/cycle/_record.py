@@ -1,0 +1,179 @@
+"""What a cycle measured and solved, and its measurement record (docs/measurement-record.md).
+
+:class:`RecordBuilder` knows the cell's calibration in the record's terms (SF1, the first camera pose): it builds
+the record of a cycle's captures once, parsed at once (:class:`Measurement` carries both the JSON object the
+journal keeps and the typed record the solve and the checks use), and moves its centres to the images of the
+holes' centres once the pose is known (the perspective correction).
+"""
+
+from __future__ import annotations
+
+import copy
+import time
+from concurrent.futures import Future
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from monoguide.daemon.config import CellConfig, ChecksConfig
+from monoguide.solver import frames
+from monoguide.solver.holes import perspective_correction
+from monoguide.solver.offset import PartDisplacement
+from monoguide.solver.record import DEFAULT_SIGMA_PX, FORMAT, MeasurementRecord, parse_record
+
+
+@dataclass
+class Capture:
+    """One measuring pose visited."""
+
+    pose_index: int  # 0-based
+    T_b_f: np.ndarray  # the robot's actual flange pose at the capture (4x4 mm), from its in-position status
+    image_path: str | None  # PNG written under images_dir (None without one)
+    centre_px: tuple[float, float]  # the found hole centre (after perspective correction once solved)
+    centres_px: tuple[tuple[float, float], ...] = ()  # every expected hole of the view (pose.points order)
+    measured_px: tuple[tuple[float, float], ...] = ()  # the same as found: the imaged ellipses' centres
+
+
+@dataclass
+class Measurement:
+    """What :meth:`CycleRunner.measure` returns: the captures, the record (as the journal keeps it, and parsed)."""
+
+    job: int
+    captures: list[Capture]
+    record: dict[str, Any]  # the measurement record (docs/measurement-record.md), JSON-able
+    parsed: MeasurementRecord  # the same, typed: what the solve and the checks use
+    timings_s: dict[str, float]
+    last_frame_at: float = 0.0  # time.monotonic() when the last frame was in hand
+    images: list[Future[bool]] = field(default_factory=list)  # the PNGs being written (True: written)
+
+
+@dataclass
+class Solution:
+    """What :meth:`CycleRunner.solve` returns."""
+
+    result: dict[str, Any]  # solver.record.result_to_dict(...), JSON-able
+    D_b: np.ndarray  # base offset, robot base frame, 4x4 mm
+    offset: tuple[float, float, float, float, float, float]  # x y z mm, A B C deg (KUKA Z-Y'-X'')
+    quality: tuple[float, float, float]  # rms px, sigma position mm (grasp point), sigma rotation deg
+    timings_s: dict[str, float] = field(default_factory=dict)  # the measurement's own dict
+    last_frame_at: float = 0.0
+    T_s1_w: np.ndarray | None = None  # the solved pose, unrounded
+    displacement: PartDisplacement | None = None  # of the part from the reference (the envelope is judged on it)
+    images: list[Future[bool]] = field(default_factory=list)  # the measurement's
+
+
+class RecordBuilder:
+    """The measurement records of one cell config."""
+
+    def __init__(self, config: CellConfig, checks: ChecksConfig, taught: tuple[np.ndarray, ...]) -> None:
+        self.config, self.checks, self.taught = config, checks, taught
+        self._template = self._record_template()
+
+    def measurement(self, job: int, captures: list[Capture], timings_s: dict[str, float], last_frame_at: float,
+                    images: list[Future[bool]]) -> Measurement:
+        """The cycle's record, built and parsed once (the view sigmas at the flange with ``[camera] T_f_c``)."""
+        record = self._record(job, captures)
+        return Measurement(job, captures, record, parse_record(record, self.config.camera.T_f_c), timings_s,
+                           last_frame_at, images)
+
+    def correct(self, measurement: Measurement, T_s1_w: np.ndarray) -> MeasurementRecord:
+        """Move each centre from the imaged ellipse's centre to the image of the hole's centre, the difference
+        predicted at ``T_s1_w``; the captures, the record and the parsed record follow (returned)."""
+        part, parsed = self.config.part, measurement.parsed
+        problem = parsed.problem
+        pixels: dict[tuple[int, int], tuple[float, float]] = {}
+        for capture in measurement.captures:
+            T_c_w = frames.invert(problem.T_s1_si[capture.pose_index]) @ T_s1_w
+            points = self.config.measuring_poses[capture.pose_index].points
+            corrected = []
+            for j, measured in zip(points, capture.measured_px, strict=True):
+                normal = part.normals_w[j] if part.normals_w is not None else np.array([0.0, 0.0, 1.0])
+                try:
+                    shift = perspective_correction(problem.camera, T_c_w, part.points_w[j], normal,
+                                                   part.hole_radius_mm)
+                except ValueError:  # not in front of the camera at this pose: no correction
+                    shift = np.zeros(2)
+                px = (measured[0] - float(shift[0]), measured[1] - float(shift[1]))
+                corrected.append(px)
+                pixels[(capture.pose_index, int(j))] = px
+            capture.centres_px = tuple(corrected)
+            capture.centre_px = corrected[0]
+        observations = [{**o, "pixel": list(pixels[(o["view"], o["point"])])}
+                        for o in measurement.record["observations"]]
+        measurement.record = {**measurement.record, "observations": observations}
+        moved = np.array([pixels[(int(v), int(p))] for v, p in zip(problem.view_index, problem.point_index,
+                                                                   strict=True)])
+        measurement.parsed = replace(parsed, problem=problem.with_pixels(moved))
+        return measurement.parsed
+
+    # --- private ------------------------------------------------------------------------------------
+
+    def _record_template(self) -> dict[str, Any]:
+        """Everything of the record but its id, views and observations: the cell's calibration, in SF1."""
+        cfg = self.config
+        T_cf_s1 = cfg.measuring_poses[0].T_cf_si
+        T_s1_cf = frames.invert(T_cf_s1)
+        layout = cfg.layout
+        record: dict[str, Any] = {
+            "format": FORMAT,
+            "camera": {k: float(v) if k not in ("width", "height") else int(v)
+                       for k, v in cfg.camera.intrinsics.as_dict().items()},
+            "points_w": cfg.part.points_w.tolist(),
+            "views": [{"T_s1_si": (T_s1_cf @ p.T_cf_si).tolist()} for p in cfg.measuring_poses],
+            "T_s1_w0": (T_s1_cf @ cfg.reference.T_cf_w0).tolist(),
+            "sigma_px": layout.sigma_px if layout is not None else DEFAULT_SIGMA_PX,
+        }
+        if layout is not None and (layout.repeatability_mm > 0 or layout.repeatability_deg > 0):
+            record["view_sigma"] = {"mm": layout.repeatability_mm, "deg": layout.repeatability_deg}
+        assert cfg.reference.T_cf_b is not None
+        record["T_b_s1"] = (frames.invert(cfg.reference.T_cf_b) @ T_cf_s1).tolist()
+        grasp = cfg.part.grasp_point_w if cfg.part.grasp_point_w is not None else cfg.part.points_w.mean(axis=0)
+        record["grasp_point_w"] = [float(v) for v in grasp]
+        record["envelope"] = self._envelope()
+        return record
+
+    def _envelope(self) -> dict[str, Any]:
+        """The offset envelope: ``[checks]``, else ``[layout]``'s (totals: the norms of its per-axis limits),
+        else the record's default."""
+        c, layout = self.checks, self.config.layout
+        axis_mm = c.envelope_axis_mm or (layout.envelope.translation_mm if layout is not None else None)
+        axis_deg = c.envelope_axis_deg or (layout.envelope.rotation_deg if layout is not None else None)
+        total_mm = c.envelope_mm or (float(np.linalg.norm(axis_mm)) if axis_mm else 50.0)
+        total_deg = c.envelope_deg or (float(np.linalg.norm(axis_deg)) if axis_deg else 5.0)
+        out: dict[str, Any] = {"mm": total_mm, "deg": total_deg}
+        if axis_mm:
+            out["axis_mm"] = [float(v) for v in axis_mm]
+        if axis_deg:
+            out["axis_deg"] = [float(v) for v in axis_deg]
+        return out
+
+    def _record(self, job: int, captures: list[Capture]) -> dict[str, Any]:
+        observations = []
+        for capture in captures:
+            points = self.config.measuring_poses[capture.pose_index].points
+            for j, px in zip(points, capture.centres_px, strict=True):
+                observations.append({"view": capture.pose_index, "point": int(j), "pixel": [px[0], px[1]]})
+        stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime())
+        T_cf_si = self._camera_poses(captures)
+        T_s1_cf = frames.invert(T_cf_si[0])
+        assert self.config.reference.T_cf_b is not None
+        return {**copy.deepcopy(self._template), "id": f"job{job}-{stamp}-{time.monotonic_ns() % 1_000_000:06d}",
+                "views": [{"T_s1_si": (T_s1_cf @ T).tolist()} for T in T_cf_si],
+                "T_s1_w0": (T_s1_cf @ self.config.reference.T_cf_w0).tolist(),
+                "T_b_s1": (frames.invert(self.config.reference.T_cf_b) @ T_cf_si[0]).tolist(),
+                "observations": observations}
+
+    def _camera_poses(self, captures: list[Capture]) -> list[np.ndarray]:
+        """``T_cf_si`` of each capture: the calibrated camera pose moved by how far the robot's reported flange
+        pose stood off the taught one (its repeatability), ``T_cf_si inv(T_f_c) inv(T_b_f_taught) T_b_f T_f_c``;
+        the calibrated pose itself when the config has no ``[camera] T_f_c`` or no taught poses."""
+        T_f_c = self.config.camera.T_f_c
+        out = []
+        for capture in sorted(captures, key=lambda c: c.pose_index):
+            T_cf_si = self.config.measuring_poses[capture.pose_index].T_cf_si
+            if T_f_c is not None and self.taught:
+                stand_off = frames.invert(self.taught[capture.pose_index]) @ capture.T_b_f
+                T_cf_si = T_cf_si @ frames.invert(T_f_c) @ stand_off @ T_f_c
+            out.append(T_cf_si)
+        return out
