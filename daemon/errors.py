@@ -271,3 +271,11 @@ class CalibrationReportFailed(CalibrationError):
 
     code = "CALIBRATION_REPORT_FAILED"
     plc_code = 729
+
+
+class OutputNotWritten(MonoguideError):
+    """A file a command was asked to write (``--out``, ``--write``) could not be written; the message names it
+    and the system's reason. What else the command had to do was done."""
+
+    code = "OUTPUT_NOT_WRITTEN"
+    plc_code = 661

@@ -12,10 +12,9 @@ from typing import Annotated, Any
 import cv2
 import numpy as np
 import typer
-from rich.markup import escape
 from rich.table import Table
 
-from monoguide.daemon.cli._console import stderr_console, stdout_console
+from monoguide.daemon.cli._console import say, stderr_console, stdout_console
 from monoguide.solver.errors import (
     BadImage,
     HoleCutByBorder,
@@ -184,4 +183,4 @@ def _print_table(results: list[dict[str, Any]]) -> None:
             message = result["error"]["message"]
             if not message.startswith(result["image"]):
                 message = f"{result['image']}: {message}"
-            errors.print(f"[red]{result['error']['code']}[/red] {escape(message)}")
+            say(errors, f"{result['error']['code']} {message}")

@@ -16,10 +16,10 @@ from typing import Annotated
 
 import typer
 
-from monoguide.daemon.cli._console import stderr_console, stdout_console
+from monoguide.daemon.cli._console import say, stdout_console
+from monoguide.daemon.cli._policy import reporting_errors
 from monoguide.daemon.errors import InitFailed
 from monoguide.daemon.packaged import CELL_TEMPLATE, config_file, robot_program_files, sim_cell_config, unit_file
-from monoguide.solver.errors import MonoguideError
 
 CELL_FILE = "cell.toml"
 
@@ -36,18 +36,13 @@ def init(
     Exit status: 0 written; 1 a file exists (without --force) or cannot be written (the message names it)."""
     files = {CELL_FILE: sim_cell_config() if sim else config_file(CELL_TEMPLATE), **robot_program_files(),
              "systemd/monoguide.service": unit_file()}
-    try:
-        written = write_files(Path(directory), files, force=force)
-    except MonoguideError as error:
-        stderr_console().print(f"{error.code} {error.message}", markup=False, highlight=False, soft_wrap=True)
-        raise typer.Exit(1) from None
+    written = reporting_errors(lambda: write_files(Path(directory), files, force=force))
     out = stdout_console()
     for path in written:
-        out.print(f"wrote {path}", markup=False, highlight=False, soft_wrap=True)
+        say(out, f"wrote {path}")
     cell = Path(directory) / CELL_FILE
-    hint = (f"next: monoguide simulate --config {cell}" if sim else
-            f"next: edit every REPLACE in {cell} (docs/cell-config.md), then monoguide probe camera --config {cell}")
-    out.print(hint, markup=False, highlight=False, soft_wrap=True)
+    say(out, f"next: monoguide simulate --config {cell}" if sim else
+        f"next: edit every REPLACE in {cell} (docs/cell-config.md), then monoguide probe camera --config {cell}")
 
 
 def write_files(directory: Path, files: dict[str, Path], *, force: bool = False) -> list[Path]:

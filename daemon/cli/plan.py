@@ -17,10 +17,11 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import numpy as np
 import typer
-from rich.markup import escape
 
-from monoguide.daemon.cli._console import stderr_console, stdout_console
+from monoguide.daemon.cli._console import say, stderr_console, stdout_console
+from monoguide.daemon.cli._policy import error_line, exit_status
 from monoguide.daemon.config import load_cell_config
+from monoguide.daemon.errors import OutputNotWritten
 from monoguide.daemon.figures import draw_style, new_figure, save_png
 from monoguide.daemon.plan import (
     CellLayout,
@@ -95,7 +96,7 @@ def plan(
         cfg = load_cell_config(config) if config is not None else None
     except MonoguideError as error:
         _fail(errors, f"config {config}", error, json_output)
-        raise typer.Exit(1) from error
+        raise typer.Exit(exit_status(error)) from error
     if layout:
         assert cfg is not None
         report, failed = _layout(cfg, sigma_px, write, out, errors, json_output)
@@ -108,7 +109,7 @@ def plan(
         if "error" in report["record"]:
             failed = True
             e = report["record"]["error"]
-            errors.print(f"record {escape(str(record))}: {e['code']}: {escape(e['message'])}")
+            say(errors, f"{e['code']} record {record}: {e['message']}")
     if json_output:
         typer.echo(json.dumps(report))
     elif layout:
@@ -134,9 +135,12 @@ def _layout(cfg, sigma_px, write, out, errors, json_output) -> tuple[dict | None
         try:
             write_config_with_layout(cfg, planned, write, note)
             report["written"] = str(write)
-        except (OSError, MonoguideError) as error:
+        except MonoguideError as error:
             failed = True
-            errors.print(f"--write {escape(str(write))}: not written: {escape(str(error))}")
+            say(errors, error_line(error, f"--write {write}: not written"))
+        except OSError as error:
+            failed = True
+            say(errors, error_line(OutputNotWritten(f"--write {write}: not written: {error.strerror or error}")))
     if out is not None:
         picture = draw_layout(cell.request, planned, cell.T_w0_si, title=f"{cfg.name}: planned measuring poses")
         failed |= not _write_png(out, picture, errors)
@@ -252,13 +256,13 @@ def _write_png(path: Path, figure: Figure, errors) -> bool:
     try:
         save_png(figure, path)
     except OSError as error:
-        errors.print(f"--out {escape(str(path))}: not written: {escape(error.strerror or str(error))}")
+        say(errors, error_line(OutputNotWritten(f"--out {path}: not written: {error.strerror or error}")))
         return False
     return True
 
 
 def _fail(errors, what: str, error: MonoguideError, json_output: bool) -> None:
-    errors.print(f"{escape(what)}: {error.code} (PLC {error.plc_code}): {escape(error.message)}")
+    say(errors, error_line(error, what))
     if json_output:
         typer.echo(json.dumps({"status": "error", "error": {**error.as_dict(), "plc_code": error.plc_code}}))
 

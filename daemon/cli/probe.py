@@ -25,10 +25,10 @@ import cv2
 import numpy as np
 import typer
 from rich.console import Console
-from rich.markup import escape
 
 from monoguide.daemon.assembly import build_camera, build_robot, build_tracker, camera_settings
-from monoguide.daemon.cli._console import stderr_console, stdout_console
+from monoguide.daemon.cli._console import stdout_console
+from monoguide.daemon.cli._policy import fail
 from monoguide.daemon.config import CellConfig, load_cell_config
 from monoguide.drivers.errors import ConfigError
 from monoguide.drivers.robot import RobotStatus
@@ -36,8 +36,6 @@ from monoguide.solver.errors import MonoguideError
 from monoguide.solver.frames import matrix_to_rotvec
 from monoguide.solver.hole_edges import bit_depth_of
 
-EXIT_DEVICE = 1
-EXIT_CONFIG = 2
 OUT_SUFFIXES = (".png", ".tif", ".tiff", ".pgm", ".bmp")  # lossless: the frame is kept as grabbed
 
 
@@ -74,18 +72,16 @@ def probe(
     ] = False,
 ) -> None:
     """Connect to the camera, the laser tracker or the robot, print its identity, take one frame, point or pose."""
-    console, errors = stdout_console(), stderr_console()
+    console = stdout_console()
     try:
         if out is not None:
             _check_out(out)
         cfg = load_cell_config(config)
         PROBES[device](cfg, ProbeOptions(out, nest, state_file, goto, write_zero), console)
     except ConfigError as exc:
-        errors.print(f"[red]config error {exc.code}[/red] (PLC {exc.plc_code}): {escape(exc.message)}")
-        raise typer.Exit(EXIT_CONFIG) from exc
+        fail(exc)  # exit 2: the config's key named
     except MonoguideError as exc:
-        errors.print(f"[red]{device.value} failed: {exc.code}[/red] (PLC {exc.plc_code}): {escape(exc.message)}")
-        raise typer.Exit(EXIT_DEVICE) from exc
+        fail(exc, f"{device.value} failed")
 
 
 def _probe_camera(cfg: CellConfig, options: ProbeOptions, console: Console) -> None:

@@ -20,13 +20,13 @@ from typing import Annotated
 
 import typer
 
+from monoguide.daemon.cli._policy import EXIT_FAILED, error_line, exit_status
 from monoguide.daemon.config import load_cell_config, require_sections
 from monoguide.daemon.errors import StateDirInvalid
 from monoguide.daemon.service import STATE_DIR_HELP, ServiceLock, state_dir
 from monoguide.drivers.errors import ConfigError
 from monoguide.solver.errors import MonoguideError
 
-EXIT_CONFIG = 2
 LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)
 
@@ -56,25 +56,22 @@ def run(
         cfg = load_cell_config(config)
         require_sections(cfg, ("plc", "robot"), command="run")
     except (ConfigError, StateDirInvalid) as error:
-        log.error("%s %s", error.code, error.message)
-        raise typer.Exit(EXIT_CONFIG) from None
+        log.error("%s", error_line(error))
+        raise typer.Exit(exit_status(error)) from None
     lock = ServiceLock(directory)
     try:
         directory.mkdir(parents=True, exist_ok=True)
         lock.acquire()  # held for the process's life: one service per state directory
         asyncio.run(_clear_status(cfg) if clear_status else _serve(cfg, directory, cycles))
-    except ConfigError as error:
-        log.error("%s %s", error.code, error.message)
-        raise typer.Exit(EXIT_CONFIG) from None
-    except MonoguideError as error:
-        log.error("%s %s", error.code, error.message)
-        raise typer.Exit(1) from None
+    except MonoguideError as error:  # the service's own line is a log line (journald), in the one format
+        log.error("%s", error_line(error))
+        raise typer.Exit(exit_status(error)) from None
     except OSError as error:
         log.error("state directory %s: %s", directory, error)
-        raise typer.Exit(1) from None
+        raise typer.Exit(EXIT_FAILED) from None
     except Exception:  # a bug: the service has already written status word 0 on its way out (docs/service.md)
         log.exception("service: unexpected failure")
-        raise typer.Exit(1) from None
+        raise typer.Exit(EXIT_FAILED) from None
     finally:
         lock.release()
 

@@ -81,7 +81,7 @@ def test_probe_bad_config_is_exit_2_on_standard_error(tmp_path: Path) -> None:
     (tmp_path / "cell.toml").write_text("[cell]\n")
     result = runner.invoke(app, ["probe", "camera", "--config", str(tmp_path / "cell.toml")])
     assert result.exit_code == 2 and result.stdout == ""
-    assert "config error CONFIG_MISSING_KEY (PLC 532)" in result.stderr and "[cell].name: missing" in result.stderr
+    assert result.stderr.startswith("CONFIG_MISSING_KEY ") and "[cell].name: missing" in result.stderr
 
 
 def test_probe_names_a_misspelt_key_with_its_correction(tmp_path: Path) -> None:
@@ -89,7 +89,7 @@ def test_probe_names_a_misspelt_key_with_its_correction(tmp_path: Path) -> None:
     (tmp_path / "cell.toml").write_text(text)
     result = runner.invoke(app, ["probe", "camera", "--config", str(tmp_path / "cell.toml")])
     assert result.exit_code == 2 and result.stdout == ""
-    assert "CONFIG_UNKNOWN_KEY (PLC 530)" in result.stderr
+    assert result.stderr.startswith("CONFIG_UNKNOWN_KEY ")
     assert "[camera].grab_timout_s: unknown key; did you mean 'grab_timeout_s'?" in result.stderr
 
 

@@ -118,3 +118,25 @@ def test_probing_the_simulated_camera_does_load_it() -> None:
         assert result.exit_code == 0, result.output
     """)
     assert "monoguide.drivers.sim.camera" in sim_modules_after(code)
+
+
+LAYERS = "the daemon's features in layers"
+
+
+@pytest.mark.parametrize(("module", "line"), [
+    ("daemon/cycle/_runner.py", "from monoguide.daemon.service import Journal  # noqa\n"),  # a feature upward
+    ("daemon/config/_cell.py", "from monoguide.daemon.cycle import State  # noqa\n"),
+    ("daemon/errors.py", "from monoguide.daemon import packaged  # noqa\n"),
+])
+def test_an_arrow_upward_between_the_daemons_features_is_caught(tree_copy: Path, module: str, line: str) -> None:
+    path = tree_copy / "monoguide" / module
+    path.write_text(path.read_text() + line)
+    result = lint_imports(tree_copy)
+    assert result.returncode == 1 and f"{LAYERS} BROKEN" in result.stdout, result.stdout
+
+
+def test_a_new_module_directly_in_the_daemon_must_take_its_layer(tree_copy: Path) -> None:
+    (tree_copy / "monoguide" / "daemon" / "helpers.py").write_text('"""A module nobody placed."""\n')
+    result = lint_imports(tree_copy)
+    assert result.returncode == 1 and f"{LAYERS} BROKEN" in result.stdout, result.stdout
+    assert "monoguide.daemon.helpers" in result.stdout
