@@ -1,27 +1,37 @@
 """The cell config: each section's dataclass beside its reader, and the loader of the whole file
 (docs/cell-config.md).
+
+The only way in for the rest of the code: ``_cell`` loads the file and checks what spans sections; ``_camera``,
+``_part``, ``_devices``, ``_service``, ``_sim``, ``_layout`` and ``_calibration`` each hold their sections'
+dataclasses and readers; ``_bounds`` the documented ranges; ``_reader`` the typed getters they read with.
 """
 
 from __future__ import annotations
 
-from monoguide.daemon.config._cell import (
-    BOUNDS,
+from monoguide.daemon.config._bounds import BOUNDS
+from monoguide.daemon.config._calibration import (
     CALIBRATION_STEPS,
-    INTRINSICS_KEYS,
+    CalibrationTarget,
+    CalibrationTargetConfig,
+    CellFrameConfig,
+)
+from monoguide.daemon.config._camera import INTRINSICS_KEYS, CameraConfig
+from monoguide.daemon.config._cell import (
     OPTIONAL_SECTIONS,
     REQUIRED_SECTIONS,
     CellConfig,
-    CellFrameConfig,
-    ChecksConfig,
-    LayoutConfig,
-    ServiceConfig,
-    default_sim_state_file,
     load_cell_config,
     require_sections,
 )
+from monoguide.daemon.config._devices import PlcConfig, RobotConfig, TrackerConfig
+from monoguide.daemon.config._layout import LayoutConfig
+from monoguide.daemon.config._part import MeasuringPose, PartConfig, ReferenceConfig
+from monoguide.daemon.config._service import ChecksConfig, ServiceConfig
+from monoguide.daemon.config._sim import SimConfig, default_sim_state_file
 
 __all__ = [
-    "BOUNDS", "CALIBRATION_STEPS", "INTRINSICS_KEYS", "OPTIONAL_SECTIONS", "REQUIRED_SECTIONS", "CellConfig",
-    "CellFrameConfig", "ChecksConfig", "LayoutConfig", "ServiceConfig", "default_sim_state_file",
-    "load_cell_config", "require_sections",
+    "BOUNDS", "CALIBRATION_STEPS", "INTRINSICS_KEYS", "OPTIONAL_SECTIONS", "REQUIRED_SECTIONS",
+    "CalibrationTarget", "CalibrationTargetConfig", "CameraConfig", "CellConfig", "CellFrameConfig", "ChecksConfig",
+    "LayoutConfig", "MeasuringPose", "PartConfig", "PlcConfig", "ReferenceConfig", "RobotConfig", "ServiceConfig",
+    "SimConfig", "TrackerConfig", "default_sim_state_file", "load_cell_config", "require_sections",
 ]

@@ -1,6 +1,6 @@
 """Typed, strict access to one TOML table of the cell config: every value named by its key.
 
-:class:`ConfigTable` is what the section readers of :mod:`monoguide.daemon.config._cell` read with. Each getter
+:class:`ConfigTable` is what the section readers (``read_camera``, ``read_robot``, ...) read with. Each getter
 takes its key out of the table and remembers it as known; :meth:`ConfigTable.done` then refuses whatever
 is left, suggesting the closest known key (``sigma_pix`` -> ``sigma_px``). A key without a default is
 required: missing, it raises :class:`ConfigMissingKey`, never a zero. A number with a documented range
@@ -30,6 +30,9 @@ from monoguide.solver.frames import orthonormalize
 MATRIX_TOL = 2e-3  # printed calibration matrices are rounded to 4 decimals; re-orthonormalised on load
 
 
+# The default of a required key. A getter given any other default gets that very object back from _pop when
+# the key is absent (`value is default`) and returns it as given, unchecked; a value from the file never is
+# _MISSING, so `is default` alone tells the two apart.
 _MISSING = object()
 _HOST_LABEL = re.compile(r"[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0-9])?")  # RFC 1123: 1-63 characters
 
@@ -144,8 +147,7 @@ class ConfigTable:
 
     def text(self, key: str, default: Any = _MISSING, nonempty: bool = False) -> Any:
         """A string; ``nonempty``: a name, which must not be empty or only blanks."""
-        value = self._pop(key, default)
-        if value is default and default is not _MISSING:
+        if (value := self._pop(key, default)) is default:
             return value
         if not isinstance(value, str):
             raise ConfigError(f"{self.where}.{key} = {value!r}: expected a string")
@@ -155,24 +157,21 @@ class ConfigTable:
 
     def host(self, key: str, default: Any = _MISSING) -> Any:
         """An IPv4 or IPv6 address, or an RFC 1123 host name (resolved only when the device is opened)."""
-        value = self.text(key, default)
-        if value is default and default is not _MISSING:
+        if (value := self.text(key, default)) is default:
             return value
         if (problem := host_problem(value)) is not None:
             raise ConfigError(f"{self.where}.{key} = {value!r}: {problem}")
         return value
 
     def texts(self, key: str, default: Any = _MISSING) -> Any:
-        value = self._pop(key, default)
-        if value is default and default is not _MISSING:
+        if (value := self._pop(key, default)) is default:
             return value
         if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
             raise ConfigError(f"{self.where}.{key} = {value!r}: expected a list of strings")
         return tuple(value)
 
     def choice(self, key: str, options: tuple[str, ...], default: Any = _MISSING) -> Any:
-        value = self.text(key, default)
-        if value is default and default is not _MISSING:
+        if (value := self.text(key, default)) is default:
             return value
         if value not in options:
             close = difflib.get_close_matches(value, options, n=1)
@@ -181,16 +180,14 @@ class ConfigTable:
         return value
 
     def boolean(self, key: str, default: Any = _MISSING) -> Any:
-        value = self._pop(key, default)
-        if value is default and default is not _MISSING:
+        if (value := self._pop(key, default)) is default:
             return value
         if not isinstance(value, bool):
             raise ConfigError(f"{self.where}.{key} = {value!r}: expected true or false")
         return value
 
     def path(self, key: str, default: Any = _MISSING) -> Any:
-        value = self.text(key, default)
-        if value is default and default is not _MISSING:
+        if (value := self.text(key, default)) is default:
             return value
         p = Path(os.path.expandvars(os.path.expanduser(value)))
         return p if p.is_absolute() else self.base / p
@@ -198,8 +195,7 @@ class ConfigTable:
     def number(self, key: str, default: Any = _MISSING, positive: bool = False, nonnegative: bool = False,
                bounds: Bounds | None = None) -> Any:
         """A finite number; ``bounds``: within its documented range (NaN and infinities are outside every range)."""
-        value = self._pop(key, default)
-        if value is default and default is not _MISSING:
+        if (value := self._pop(key, default)) is default:
             return value
         if isinstance(value, bool) or not isinstance(value, int | float):
             within = f" ({bounds})" if bounds else ""
@@ -217,8 +213,7 @@ class ConfigTable:
     def integer(self, key: str, default: Any = _MISSING, minimum: int | None = None,
                 bounds: Bounds | None = None) -> Any:
         """An integer; ``bounds``: within its documented range."""
-        value = self._pop(key, default)
-        if value is default and default is not _MISSING:
+        if (value := self._pop(key, default)) is default:
             return value
         if isinstance(value, bool) or not isinstance(value, int):
             within = f" ({bounds})" if bounds else ""
@@ -230,8 +225,7 @@ class ConfigTable:
         return value
 
     def ints(self, key: str, length: int | None, default: Any = _MISSING) -> Any:
-        value = self._pop(key, default)
-        if value is default and default is not _MISSING:
+        if (value := self._pop(key, default)) is default:
             return value
         ok = isinstance(value, list) and all(isinstance(v, int) and not isinstance(v, bool) for v in value)
         if not ok or (length is not None and len(value) != length):
@@ -239,8 +233,7 @@ class ConfigTable:
         return tuple(value)
 
     def vector(self, key: str, length: int, default: Any = _MISSING) -> Any:
-        value = self._pop(key, default)
-        if value is default and default is not _MISSING:
+        if (value := self._pop(key, default)) is default:
             return value if value is None else np.asarray(value, dtype=float)
         arr = self._array(key, value)
         if arr.shape != (length,):
@@ -256,8 +249,7 @@ class ConfigTable:
 
     def matrix(self, key: str, default: Any = _MISSING) -> Any:
         """A 4x4 rigid transform, row-major; its rotation re-orthonormalised within :data:`MATRIX_TOL`."""
-        value = self._pop(key, default)
-        if value is default and default is not _MISSING:
+        if (value := self._pop(key, default)) is default:
             return value
         T = self._array(key, value)
         if T.shape != (4, 4):

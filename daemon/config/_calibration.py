@@ -1,0 +1,126 @@
+"""``[cell_frame]``, ``[calibration_target]`` and ``[calibration]``: what the calibration wizard measures the cell
+with, and the provenance ``monoguide calibrate`` writes (docs/calibration.md); also a calibration target as the
+simulated cell places it (``[[sim.targets]]``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import datetime
+from typing import Any
+
+import numpy as np
+
+from monoguide.daemon.config._bounds import bounded_integer
+from monoguide.daemon.config._reader import ConfigTable
+from monoguide.drivers.errors import ConfigError
+from monoguide.solver.calibration.target import TargetMarks, grid_marks
+
+CELL_FRAME_METHODS = ("best-fit", "3-2-1")
+# the wizard's steps (daemon/calibrate/_rig.py STEPS), the keys of [calibration.steps]
+CALIBRATION_STEPS = ("intrinsics", "cell", "base", "part", "sfi", "verify", "accuracy")
+
+
+@dataclass(frozen=True)
+class CalibrationTarget:
+    name: str
+    T_cf_t: np.ndarray
+    points_t: np.ndarray  # (m, 3) tracker-measurable points (nests in its featured holes), target frame
+
+
+@dataclass(frozen=True)
+class CellFrameConfig:
+    """``[cell_frame]``: the benchmark SMR nests that define the cell frame CF (docs/calibration.md)."""
+
+    method: str  # "best-fit" (all benchmarks) or "3-2-1" (origin at the first, x to the second, xy through the third)
+    benchmarks: dict[str, np.ndarray]  # nest name -> nominal coordinates in CF, mm (file order kept)
+
+
+def read_cell_frame(t: ConfigTable) -> CellFrameConfig:
+    method = t.choice("method", CELL_FRAME_METHODS, "best-fit")
+    bench = t.table("benchmarks")
+    benchmarks = read_nests(bench)
+    bench.done()
+    if len(benchmarks) < 3:
+        raise ConfigError(f"{t.where}.benchmarks: {len(benchmarks)} nests ({sorted(benchmarks)}); the cell frame "
+                          f"needs at least 3")
+    t.done()
+    return CellFrameConfig(method, benchmarks)
+
+
+@dataclass(frozen=True)
+class CalibrationTargetConfig:
+    """``[calibration_target]``: the target with circular marks the measuring poses are calibrated with."""
+
+    nests_t: np.ndarray  # (m, 3) its SMR nests in its own frame TF, mm (tracker names T<i>.<k>, k 1-based)
+    marks: TargetMarks  # marks_cols x marks_rows marks at marks_pitch_mm from marks_origin_t
+
+
+def read_calibration_target(t: ConfigTable) -> CalibrationTargetConfig:
+    nests = t.points("nests_t")
+    if len(nests) < 3:
+        raise ConfigError(f"{t.where}.nests_t: {len(nests)} nests; the target's frame needs at least 3")
+    cols, rows = bounded_integer(t, "marks_cols"), bounded_integer(t, "marks_rows")
+    pitch = t.number("marks_pitch_mm", positive=True)
+    radius = t.number("marks_radius_mm", positive=True)
+    if radius >= pitch / 2:
+        raise ConfigError(f"{t.where}.marks_radius_mm = {radius:g}: marks of this radius touch at a pitch of "
+                          f"{pitch:g} mm (must be below {pitch / 2:g})")
+    origin = t.vector("marks_origin_t", 3)
+    t.done()
+    grid = grid_marks(cols, rows, pitch, radius, (float(origin[0]), float(origin[1])))
+    centres = grid.centers_t.copy()
+    centres[:, 2] = origin[2]
+    return CalibrationTargetConfig(nests, TargetMarks(centres, radius))
+
+
+def read_calibration(t: ConfigTable) -> dict[str, Any]:
+    """Provenance, read loosely but typed: the wizard's keys are known (a misspelt one is refused), the devices
+    and the per-step summaries take any names (steps: one of CALIBRATION_STEPS)."""
+    out: dict[str, Any] = {}
+    if isinstance(t.raw.get("date"), datetime):  # an unquoted TOML date-time is as good as its text
+        t.raw["date"] = t.raw["date"].isoformat()
+    date = t.text("date", None)
+    if date is not None:
+        try:
+            datetime.fromisoformat(date)
+        except ValueError as exc:
+            raise ConfigError(f"{t.where}.date = {date!r}: expected an ISO 8601 date-time") from exc
+        out["date"] = date
+    for key in ("session", "wizard_version", "previous"):
+        if (value := t.text(key, None)) is not None:
+            out[key] = value
+    if (sim := t.boolean("sim", None)) is not None:
+        out["sim"] = sim
+    devices = t.optional_table("devices")
+    out["devices"] = {k: devices.text(k) for k in list(devices.raw)}  # named by the cell: camera, tracker, ...
+    devices.done()
+    steps = t.optional_table("steps")
+    out["steps"] = {}
+    for name in [k for k in CALIBRATION_STEPS if steps.has(k)]:
+        step = steps.table(name)
+        out["steps"][name] = {k: _provenance_value(step, k) for k in list(step.raw)}
+        step.done()
+    steps.done()
+    t.done()
+    return out
+
+
+def read_nests(t: ConfigTable) -> dict[str, np.ndarray]:
+    """A table of SMR nests named by the cell, every key a nest: name -> [x, y, z] (file order kept)."""
+    nests = {k: t.vector(k, 3) for k in list(t.raw)}
+    if any(not name.strip() for name in nests):
+        raise ConfigError(f"{t.where}: a nest with an empty name ({sorted(nests)})")
+    return nests
+
+
+def _provenance_value(t: ConfigTable, key: str) -> Any:
+    value = t.raw.get(key)
+    if isinstance(value, str | bool):
+        return t.boolean(key) if isinstance(value, bool) else t.text(key)
+    if isinstance(value, list):
+        return [float(v) for v in t.vector(key, len(value))]
+    if isinstance(value, int):
+        return t.integer(key)
+    if isinstance(value, float):
+        return t.number(key)
+    raise ConfigError(f"{t.where}.{key} = {value!r}: expected a number, string, true/false or a list of numbers")
