@@ -1,6 +1,7 @@
 """config/cell-template.toml: it loads with the real loader, and it holds (and comments) every key the loader asks
 for. The key list is the loader's own: every :class:`ConfigTable` the loader creates records which keys its getters
-asked for, so a key someone adds to ``daemon/config/_cell.py`` without adding it to the template fails here."""
+asked for, so a key someone adds to a section reader in ``daemon/config/`` without adding it to the template fails
+here."""
 
 from __future__ import annotations
 
