@@ -17,8 +17,6 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
 from monoguide.daemon.config import CellConfig, default_sim_state_file, load_cell_config
 from monoguide.daemon.errors import ConfigMissingKey
 from monoguide.drivers.atomic_file import write_atomic
@@ -29,7 +27,6 @@ from monoguide.drivers.modbus_plc import ModbusPlc
 from monoguide.drivers.plc import Plc
 from monoguide.drivers.robot import Robot
 from monoguide.drivers.tracker import LaserTracker, SerialLaserTracker
-from monoguide.solver import frames
 
 if TYPE_CHECKING:
     from monoguide.drivers.sim.cell import SimCell, SimCellSpec
@@ -98,7 +95,7 @@ def build_robot(config: CellConfig, state_file: Path | None = None) -> Robot:
         host, port = str(listens["host"]), int(listens["port"])
     timeouts = {"connect_timeout_s": r.connect_timeout_s, "move_timeout_s": r.move_timeout_s,
                 "ack_timeout_s": r.ack_timeout_s, "stale_timeout_s": r.stale_timeout_s,
-                "T_b_f_taught": taught_flange_poses(config), "pose_tolerance_mm": r.pose_tolerance_mm,
+                "T_b_f_taught": config.taught_flange_poses(), "pose_tolerance_mm": r.pose_tolerance_mm,
                 "pose_tolerance_deg": r.pose_tolerance_deg}
     if r.make == "ur":
         return UrRobot(host, port, frequency_hz=r.rtde_frequency_hz, **timeouts)
@@ -112,12 +109,6 @@ def build_plc(config: CellConfig) -> Plc:
     if p is None:
         raise ConfigMissingKey(f"{config.path}: [plc]: missing section")
     return ModbusPlc(p.host, p.port, p.unit, p.base, p.word_order, p.timeout_s)  # type: ignore[arg-type]
-
-
-def taught_flange_poses(config: CellConfig) -> tuple[np.ndarray, ...]:
-    """``T_b_f`` of each measuring pose of ``config`` (:func:`monoguide.solver.frames.taught_flange_poses`)."""
-    return frames.taught_flange_poses(config.reference.T_cf_b, config.camera.T_f_c,
-                                      [(p.T_b_f, p.T_cf_si) for p in config.measuring_poses])
 
 
 def sim_cell_spec(config: CellConfig) -> SimCellSpec:

@@ -56,6 +56,7 @@ from monoguide.daemon.config._service import ChecksConfig, ServiceConfig, read_c
 from monoguide.daemon.config._sim import SimConfig, read_sim
 from monoguide.daemon.errors import ConfigMissingKey
 from monoguide.drivers.errors import ConfigError
+from monoguide.solver import frames
 from monoguide.solver.consistency import MIN_OBSERVATIONS
 
 COLLINEAR_MM = 1e-3  # holes within this of one line leave the rotation about it unsolved
@@ -96,6 +97,12 @@ class CellConfig:
     cell_frame: CellFrameConfig | None = None
     calibration_target: CalibrationTargetConfig | None = None
     calibration: dict[str, Any] | None = None  # provenance written by `monoguide calibrate`, as read
+
+    def taught_flange_poses(self) -> tuple[np.ndarray, ...]:
+        """``T_b_f`` of each measuring pose: as taught, else from its calibrated camera pose (empty when the config
+        cannot say): the robot adapter checks each stop against it, the cycle measures the robot's stand-off."""
+        return frames.taught_flange_poses(self.reference.T_cf_b, self.camera.T_f_c,
+                                          [(p.T_b_f, p.T_cf_si) for p in self.measuring_poses])
 
 
 def load_cell_config(path: str | os.PathLike[str]) -> CellConfig:

@@ -99,9 +99,7 @@ class CycleRunner:
         self.checks = config.checks or ChecksConfig()
         c = config.camera
         self.settings = CameraSettings(c.pixel_format, c.exposure_us, c.gain_db, c.region)
-        taught = frames.taught_flange_poses(config.reference.T_cf_b, c.T_f_c,
-                                            [(p.T_b_f, p.T_cf_si) for p in config.measuring_poses])
-        self.records = RecordBuilder(config, self.checks, taught)
+        self.records = RecordBuilder(config, self.checks, config.taught_flange_poses())
         self._views = tuple(self._plan_view(i) for i in range(len(config.measuring_poses)))
         self._camera_configured = False
         self._finder = ThreadPoolExecutor(1, thread_name_prefix="monoguide-holes")
