@@ -34,6 +34,7 @@ import tomlkit
 import tomlkit.exceptions
 from tomlkit.items import InlineTable, Item, Table
 
+from monoguide.daemon.calibrate._summary import step_summary
 from monoguide.daemon.config import CALIBRATION_STEPS, INTRINSICS_KEYS, CellConfig, load_cell_config
 from monoguide.daemon.errors import (
     CalibrationFileError,
@@ -63,7 +64,6 @@ __all__ = [
     "CalibrationFileUneditable",
     "CalibrationValueInvalid",
     "read_calibration_provenance",
-    "step_summary",
     "write_calibration",
 ]
 
@@ -125,39 +125,6 @@ def read_calibration_provenance(config: CellConfig | str | os.PathLike[str]) -> 
     if not isinstance(config, CellConfig):
         config = load_cell_config(config)
     return config.calibration
-
-
-def step_summary(step: str, result: dict[str, Any]) -> dict[str, Any]:
-    """The residual summary of one step's result written to ``[calibration.steps]`` (numbers, strings, booleans,
-    lists of numbers; non-finite numbers left out). In --sim the step's ``truth_error`` keys as ``truth_<key>``."""
-    r = result
-    out: dict[str, Any] = {}
-    if isinstance(r.get("done"), str):
-        out["done"] = r["done"]
-    if step == "intrinsics":
-        out |= {"rms_px": r.get("rms_px"), "images": r.get("images"), "rejected": len(r.get("rejected") or {})}
-    elif step in ("cell", "part"):
-        res = list((r.get("residuals_mm") or {}).values())
-        out |= {"method": r.get("method"), "rms_mm": r.get("rms_mm"), "max_mm": max(res) if res else None}
-    elif step == "base":
-        res = list(r.get("residuals_mm") or [])
-        out |= {"rms_mm": r.get("rms_mm"), "max_mm": max(res) if res else None, "poses": len(res),
-                "sigma_mm": r.get("sigma_mm"), "sigma_deg": r.get("sigma_deg")}
-    elif step == "sfi":
-        poses = r.get("poses") or []
-        out |= {"spread_mm_max": max((p.get("spread_mm", 0.0) for p in poses), default=None),
-                "spread_deg_max": max((p.get("spread_deg", 0.0) for p in poses), default=None),
-                "visits": sum(int(p.get("visits", 0)) for p in poses), "poses": len(poses),
-                "hand_eye_spread_mm": r.get("T_f_c_spread_mm"), "hand_eye_spread_deg": r.get("T_f_c_spread_deg")}
-    elif step == "verify":
-        out |= {k: r.get(k) for k in ("max_mm", "max_deg", "n", "sigma_mm", "sigma_deg", "predicted_sigma_mm",
-                                      "predicted_sigma_deg")}
-    elif step == "accuracy":
-        out |= {"rms_dR_deg": r.get("rms_dR_deg"), "rms_dT_mm": r.get("rms_dT_mm"), "passed": r.get("passed"),
-                "poses": len(r.get("rows") or [])}
-    for key, value in (r.get("truth_error") or {}).items():
-        out[f"truth_{key}"] = value
-    return {k: v for k, v in ((k, _plain(v)) for k, v in out.items()) if v is not None}
 
 
 # --- the calibrated values -------------------------------------------------------------------------
@@ -339,20 +306,3 @@ def _set(table: Table | InlineTable, key: str, kind: str, value: Any) -> None:
         table[key] = item
     else:
         add_after_last_value(table, key, item)
-
-
-# --- provenance values ----------------------------------------------------------------------------
-
-
-def _plain(value: Any) -> Any:
-    """A JSON-ish value as the provenance can hold it (None: leave it out)."""
-    if isinstance(value, bool | str):
-        return value
-    if isinstance(value, int | np.integer):
-        return int(value)
-    if isinstance(value, float | np.floating):
-        return float(value) if math.isfinite(value) else None
-    if isinstance(value, list | tuple | np.ndarray):
-        numbers = [_plain(v) for v in value]
-        return numbers if all(isinstance(v, int | float) and not isinstance(v, bool) for v in numbers) else None
-    return None

@@ -14,7 +14,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, Protocol, TextIO
 
-from monoguide.daemon.config import CellConfig
+from monoguide.daemon.config import CALIBRATION_STEPS, CellConfig
 from monoguide.daemon.errors import CalibrationAborted
 from monoguide.drivers.camera import Camera
 from monoguide.drivers.robot import Robot
@@ -41,7 +41,7 @@ ACTIONS = (
     PLACE_PART,
 )
 
-STEPS = ("intrinsics", "cell", "base", "part", "sfi", "verify", "accuracy")
+STEPS = CALIBRATION_STEPS  # intrinsics, cell, base, part, sfi, verify, accuracy
 
 # What each step needs done before it (direct and indirect, so a check needs no closure).
 REQUIRES: dict[str, tuple[str, ...]] = {
@@ -95,6 +95,21 @@ class CalibrationRig:
     truth_errors: Callable[..., dict[str, float]] | None = None
     # --sim only: truth_errors(step, step_result, earlier_results) -> {"base_mm": ..., ...}; None on a real cell
     sim: bool = False
+
+    def devices(self) -> dict[str, str]:
+        """Each device's identity as "vendor model serial" by kind (the session checks them, the provenance names
+        them); a device that does not say who it is is left out."""
+        out = {}
+        for kind, device in (("camera", self.camera), ("tracker", self.tracker), ("robot", self.robot)):
+            ident = getattr(device, "identity", None)
+            if ident is not None:
+                out[kind] = " ".join(str(getattr(ident, k, "")) for k in ("vendor", "model", "serial")).strip()
+        return out
+
+
+def quiet(_line: str) -> None:
+    """A progress sink that says nothing."""
+    return None
 
 
 class ConsoleOperator:

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from monoguide.daemon.calibrate._earlier import earlier_matrix
 from monoguide.daemon.calibrate._rig import (
     CLEAR_VIEW,
     MOUNT_FLANGE_SMR,
@@ -101,7 +102,7 @@ def run_cell(rig: CalibrationRig, earlier: dict[str, dict[str, Any]]) -> dict[st
 def run_base(rig: CalibrationRig, earlier: dict[str, dict[str, Any]]) -> dict[str, Any]:
     """Step 3: the robot carries the SMR on its flange to calibration poses 1..``base_poses``; at each the
     controller's flange pose and the tracker's reading (mapped into CF) go into :func:`fit_robot_base`."""
-    T_cf_tracker = np.asarray(earlier["cell"]["T_cf_tracker"], dtype=float)
+    T_cf_tracker = earlier_matrix(earlier, "base", "cell", "T_cf_tracker")
     n = rig.options.base_poses
     rig.operator.ask(MOUNT_FLANGE_SMR, f"fit the SMR tool on the robot flange (nest {FLANGE_NEST}); the robot will "
                      f"then move to its {n} base-calibration poses: keep the cell clear")

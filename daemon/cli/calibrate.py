@@ -1,13 +1,16 @@
 """`monoguide calibrate [STEP]`: the calibration wizard (docs/calibration.md, "monoguide calibrate").
 
-Seven steps (:data:`~monoguide.daemon.calibrate._rig.STEPS`), each measured on the cell with the laser tracker,
-the robot and the camera while the person at the cell is told what to do; every finished step and every
-refusal goes into the session file at once, so an interrupted wizard resumes at the first step not done.
-When all are done the calibration is written into the cell config (the previous one kept) with a report.
-``--sim`` calibrates the simulated cell and prints each result's error against its truth.
+Seven steps (:data:`~monoguide.daemon.calibrate.STEPS`), each measured on the cell with the laser tracker, the
+robot and the camera while the person at the cell is told what to do; every finished step and every refusal goes
+into the session file at once, so an interrupted wizard resumes at the first step not done. When all are done
+the calibration is written into the cell config (the previous one kept) with a report. ``--sim`` calibrates the
+simulated cell and prints each result's error against its truth. The wizard itself is the package
+``monoguide.daemon.calibrate``; this module reads the options, wires the prompts and progress to the terminal
+and ends the command as ``cli._policy`` says.
 
 Exit status: 0 done (or nothing left to do), 1 a step refused or a device failed (the session keeps what was
-done), 2 bad options, config or session, 130 interrupted (Ctrl-C, or end of input at a prompt).
+done), 2 bad options, config or session, 130 interrupted (Ctrl-C, or end of input at a prompt). The line that
+says why is ``CODE message`` on standard error (``CALIBRATION_DEGENERATE step 'cell' refused: ...``).
 """
 
 from __future__ import annotations
@@ -18,7 +21,6 @@ import sys
 import tomllib
 from collections.abc import Callable, Iterator
 from dataclasses import fields
-from importlib import metadata
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -31,28 +33,25 @@ from monoguide.daemon.calibrate import (
     CalibrationRig,
     CalibrationSession,
     ConsoleOperator,
-    now_iso,
+    accuracy_failed,
+    describe,
+    open_cell_rig,
     open_session,
-    run_accuracy,
-    run_base,
-    run_cell,
-    run_intrinsics,
-    run_part,
-    run_sfi,
-    run_verify,
-    write_calibration,
-    write_report,
+    open_sim_rig,
+    plan_steps,
+    run_step,
+    summary,
+    write_session_calibration,
+    write_session_report,
 )
+from monoguide.daemon.cli._console import say, stderr_console
+from monoguide.daemon.cli._policy import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, exit_status, fail, report
 from monoguide.daemon.config import CellConfig, load_cell_config
-from monoguide.daemon.errors import CalibrationAborted, CalibrationSessionInvalid, CalibrationStepNotReady
+from monoguide.daemon.errors import CalibrationAborted, CalibrationSessionInvalid
+from monoguide.daemon.packaged import is_packaged, sim_cell_config
 from monoguide.drivers.errors import ConfigError
 from monoguide.solver.errors import MonoguideError
 
-EXIT_OK, EXIT_REFUSED, EXIT_CONFIG, EXIT_INTERRUPTED = 0, 1, 2, 130
-STEP_FUNCTIONS: dict[str, Callable[[CalibrationRig, dict[str, dict[str, Any]]], dict[str, Any]]] = {
-    "intrinsics": run_intrinsics, "cell": run_cell, "base": run_base, "part": run_part, "sfi": run_sfi,
-    "verify": run_verify, "accuracy": run_accuracy}
-SUMMARY_KEYS = ("base_mm", "base_deg", "sfi_mm_max", "sfi_deg_max", "focal_rel_error")
 OPTION_NAMES = tuple(f.name for f in fields(CalibrationOptions))
 
 
@@ -94,33 +93,32 @@ def calibrate(
         method = getattr(getattr(cfg, "cell_frame", None), "method", None)  # [cell_frame] method: a new session's
         session, options = open_session(work, config_path, sim, given, restart=restart,
                                         defaults={"cell_method": method} if method else {})
-        to_run = plan_steps(session, step, from_step)
+        to_run = plan_steps(session, step, from_step, note=_note)
     except MonoguideError as exc:  # ConfigError, CalibrationSessionInvalid, CalibrationStepNotReady
-        _err(f"error {exc.code}: {exc.message}")
-        raise typer.Exit(EXIT_CONFIG) from exc
+        fail(exc, status=EXIT_USAGE)
     code = EXIT_OK
     if to_run:
         try:
             with _open_rig(cfg, config_path, work, options, sim=sim, seed=seed, host=host, yes=yes) as rig:
                 session.data["calibrated_config"] = str(rig.config_path)
-                session.check_devices(_devices(rig))
+                session.check_devices(rig.devices())
                 code = run_steps(rig, session, to_run, human=_human_sink(json_out))
         except CalibrationSessionInvalid as exc:
-            _err(f"error {exc.code}: {exc.message}")
-            code = EXIT_CONFIG
+            report(exc)
+            code = EXIT_USAGE
         except KeyboardInterrupt:
-            _err(f"interrupted: the session keeps the {len(session.done())} step(s) done ({session.path}); "
-                 "run the same command again to resume")
+            report(CalibrationAborted(f"interrupted: the session keeps the {len(session.done())} step(s) done "
+                                      f"({session.path}); run the same command again to resume"))
             code = EXIT_INTERRUPTED
         except MonoguideError as exc:  # opening a device
-            _err(f"error {exc.code}: {exc.message}")
-            code = EXIT_REFUSED
+            report(exc)
+            code = exit_status(exc)
     elif "calibration_file" in session.data:
-        _err(f"all {len(STEPS)} steps are done ({session.path}); --from STEP or --restart to redo")
+        _note(f"all {len(STEPS)} steps are done ({session.path}); --from STEP or --restart to redo")
     calibrated = Path(session.data.get("calibrated_config") or config_path)
     if (code == EXIT_OK and session.next_step() is None and "calibration_file" not in session.data
             and not write_results(session, calibrated, work, sim, accept)):
-        code = EXIT_REFUSED
+        code = EXIT_FAILED
     if json_out:
         sys.stdout.write(json.dumps(summary(session)) + "\n")
         sys.stdout.flush()
@@ -129,104 +127,65 @@ def calibrate(
 
 def run_steps(rig: CalibrationRig, session: CalibrationSession, steps: list[str],
               human: Callable[[str], None] | None = None) -> int:
-    """Run ``steps`` in order on ``rig``, recording each result or refusal in ``session``; returns the exit
-    status (0, 1 refused, 130 aborted at a prompt). ``KeyboardInterrupt`` passes through (the session is saved)."""
-    human = human or (lambda line: print(line, flush=True))
+    """Run ``steps`` in order on ``rig``, each recorded in ``session`` (:func:`run_step`), each result's summary
+    to ``human`` (default standard output); returns the exit status: 0, 1 at the first refusal, 130 aborted at a
+    prompt. ``KeyboardInterrupt`` passes through (the session is saved)."""
+    human = human or _print
     for step in steps:
-        missing = session.missing_for(step)
-        if missing:
-            _err(f"step '{step}' needs {', '.join(missing)} first")
-            return EXIT_REFUSED
-        rig.progress(f"--- step '{step}' ({STEPS.index(step) + 1} of {len(STEPS)})")
         try:
-            result = STEP_FUNCTIONS[step](rig, session.results())
+            result = run_step(rig, session, step)
         except CalibrationAborted as exc:
-            _err(f"{exc.message} (the session keeps {len(session.done())} step(s) done)")
+            report(CalibrationAborted(f"{exc.message} (the session keeps {len(session.done())} step(s) done)"))
             return EXIT_INTERRUPTED
         except MonoguideError as exc:
-            session.record_refusal(step, exc)
-            _err(f"step '{step}' refused: {exc.code} (plc_code {exc.plc_code}): {exc.message}")
-            return EXIT_REFUSED
-        if rig.truth_errors is not None:
-            result["truth_error"] = {k: float(v) for k, v in rig.truth_errors(step, result, session.results()).items()}
-        session.record_result(step, result)
-        for line in describe(step, session.data["steps"][step]):
+            report(exc, f"step '{step}' refused")
+            return EXIT_FAILED
+        for line in describe(step, result):
             human(line)
     return EXIT_OK
 
 
-def summary(session: CalibrationSession) -> dict[str, Any]:
-    """The ``--json`` summary: every truth error of the steps done (``None`` where unknown: on a real cell),
-    the steps done, the refusals, and where the calibration and the report went."""
-    out: dict[str, Any] = dict.fromkeys(SUMMARY_KEYS)
-    for result in session.results().values():
-        out.update(result.get("truth_error") or {})
-    out.update({"calibration_file": session.data.get("calibration_file"), "report": session.data.get("report"),
-                "session": str(session.path), "sim": bool(session.data.get("sim")), "steps_done": session.done(),
-                "refused": session.data.get("refused", {})})
-    return out
-
-
-def describe(step: str, r: dict[str, Any]) -> list[str]:
-    """A short human summary of one step's result (and its truth error in --sim)."""
-    if step == "intrinsics":
-        c = r["camera"]
-        line = (f"intrinsics: fx {c['fx']:.2f} fy {c['fy']:.2f} cx {c['cx']:.2f} cy {c['cy']:.2f} px, "
-                f"k1 {c['k1']:.4g}; RMS {r['rms_px']:.3f} px; {len(r.get('per_image_rms_px', []))} of "
-                f"{r.get('images')} images used")
-        if r.get("rejected"):
-            line += f" ({len(r['rejected'])} rejected)"
-    elif step in ("cell", "part"):
-        res = r.get("residuals_mm", {})
-        worst = max(res, key=res.get) if res else "-"
-        what = f"cell frame ({r.get('method')})" if step == "cell" else "part frame"
-        line = f"{what}: RMS {r['rms_mm']:.3f} mm, largest {res.get(worst, 0.0):.3f} mm ({worst}), {len(res)} points"
-    elif step == "base":
-        line = (f"robot base: RMS {r['rms_mm']:.3f} mm over {len(r['residuals_mm'])} poses, largest "
-                f"{max(r['residuals_mm']):.3f} mm; sigma {r['sigma_mm']:.4f} mm / {r['sigma_deg']:.5f} deg; SMR on "
-                f"the flange at {', '.join(f'{v:.2f}' for v in r['smr_f'])} mm")
-    elif step == "sfi":
-        poses = r.get("poses", [])
-        spread = max((p.get("spread_mm", 0.0) for p in poses), default=0.0)
-        line = (f"measuring poses: {len(poses)} SFi, largest spread {spread:.3f} mm; camera on the flange spread "
-                f"{_num(r, 'T_f_c_spread_mm', '.3f')} mm / {_num(r, 'T_f_c_spread_deg', '.4f')} deg")
-    elif step == "verify":
-        line = (f"verification: {r.get('n')} measurements, largest excursion {_num(r, 'max_mm', '.3f')} mm / "
-                f"{_num(r, 'max_deg', '.4f')} deg; predicted sigma {_num(r, 'predicted_sigma_mm', '.3f')} mm / "
-                f"{_num(r, 'predicted_sigma_deg', '.4f')} deg")
-    else:
-        verdict = {True: "PASSED", False: "FAILED"}.get(r.get("passed"), "no verdict")
-        line = (f"accuracy: RMS dR {_num(r, 'rms_dR_deg', '.4f')} deg, dT {_num(r, 'rms_dT_mm', '.3f')} mm over "
-                f"{len(r.get('rows', []))} poses: {verdict}")
-    lines = [line]
-    if r.get("truth_error"):
-        lines.append("  error against the simulated truth: "
-                     + ", ".join(f"{k} {v:.4g}" for k, v in r["truth_error"].items()))
-    return lines
+def write_results(session: CalibrationSession, calibrated_config: Path, work: Path, sim: bool,
+                  accept: bool = False) -> bool:
+    """The calibration into the cell config and the report beside the session; False when the calibration was
+    not written (the session keeps every result; running the command again retries). A failed accuracy
+    validation keeps the calibration out of the cell config unless ``accept``; the report is written."""
+    ok = True
+    try:
+        if accept and accuracy_failed(session):
+            _note("the accuracy validation FAILED; writing the calibration anyway (--accept)")
+        _note(f"calibration written into {write_session_calibration(session, calibrated_config, sim, accept)}")
+    except MonoguideError as exc:
+        report(exc, f"the calibration was not written into {calibrated_config}")
+        ok = False
+    try:
+        _note(f"report: {write_session_report(session, work)}")
+    except MonoguideError as exc:
+        report(exc, "no report")
+    session.save()
+    return ok
 
 
 # --- private ------------------------------------------------------------------------------------
 
 
-def _num(result: dict[str, Any], key: str, fmt: str) -> str:
-    value = result.get(key)
-    return format(value, fmt) if isinstance(value, (int, float)) else "?"
+def _note(line: str) -> None:
+    """A line of progress or a note on standard error (prompts, progress and errors all go there)."""
+    say(stderr_console(), line)
 
 
-def _err(text: str) -> None:
-    print(text, file=sys.stderr, flush=True)
+def _print(line: str) -> None:
+    print(line, flush=True)
 
 
 def _human_sink(json_out: bool) -> Callable[[str], None]:
     """Step summaries on standard output, or on standard error when standard output is for --json."""
-    return _err if json_out else (lambda line: print(line, flush=True))
+    return _note if json_out else _print
 
 
 def _default_work_dir(config_path: Path) -> Path:
     """``CELL.calibration/`` beside the config; for the shipped simulated cell (``--sim`` without --config),
     in the working directory: nothing is ever written beside an installed package's files."""
-    from monoguide.daemon.packaged import is_packaged
-
     folder = config_path.stem + ".calibration"
     return Path(folder) if is_packaged(config_path) else config_path.with_name(folder)
 
@@ -241,9 +200,7 @@ def _check_invocation(step: str | None, from_step: str | None, config: Path | No
     if config is None:
         if not sim:
             raise ConfigError("--config CELL.toml is required (the cell config to calibrate)")
-        from monoguide.daemon.cli.simulate import default_config
-
-        config = default_config()
+        config = sim_cell_config()
     cfg = load_cell_config(config)
     given = {**_read_values(values), **{k: v for k, v in cli.items() if v is not None}}
     _check_options(given)
@@ -287,97 +244,13 @@ def _check_options(given: dict[str, Any]) -> None:
             given[name] = kind(value)
 
 
-def plan_steps(session: CalibrationSession, step: str | None, from_step: str | None) -> list[str]:
-    """The steps this run does (and the notes on what it redoes or resumes)."""
-    if step is not None:
-        missing = session.missing_for(step)
-        if missing:
-            raise CalibrationStepNotReady(f"step '{step}' needs {', '.join(missing)} done first "
-                                          f"(monoguide calibrate {missing[0]} ...)")
-        dropped = session.forget(step)
-        if dropped:
-            _err(f"redoing {', '.join(dropped)}" + (" (they depend on it)" if len(dropped) > 1 else ""))
-        session.data.pop("calibration_file", None)
-        session.save()
-        return [step]
-    if from_step is not None:
-        dropped = session.forget_from(from_step)
-        if dropped:
-            _err(f"redoing {', '.join(dropped)}")
-            session.data.pop("calibration_file", None)
-        session.save()
-    to_run = [s for s in STEPS if s not in session.data["steps"]]
-    done = len(session.done())
-    if to_run and done:
-        _err(f"resuming at step '{to_run[0]}' ({done} of {len(STEPS)} done)")
-    return to_run
-
-
 @contextlib.contextmanager
 def _open_rig(cfg: CellConfig, config_path: Path, work: Path, options: CalibrationOptions, *, sim: bool, seed: int,
               host: str | None, yes: bool) -> Iterator[CalibrationRig]:
+    """The simulated cell's rig (``--sim``: its own operator) or the real cell's, with the console operator."""
     if sim:
-        from monoguide.daemon.calibrate import open_sim_rig  # only --sim needs it (it starts sim-cell
-
-        with open_sim_rig(config_path, work, options, seed=seed, host=host, progress=_err) as rig:
+        with open_sim_rig(config_path, work, options, seed=seed, host=host, progress=_note) as rig:
             yield rig
-        return
-    from monoguide.daemon.assembly import build_camera, build_robot, build_tracker, camera_settings
-
-    with contextlib.ExitStack() as stack:
-        tracker = build_tracker(cfg)
-        tracker.open()
-        stack.callback(tracker.close)
-        robot = build_robot(cfg)
-        robot.open()
-        stack.callback(robot.close)
-        camera = build_camera(cfg)
-        camera.open()
-        stack.callback(camera.close)
-        camera.configure(camera_settings(cfg))
-        yield CalibrationRig(cfg, config_path, tracker, robot, camera, ConsoleOperator(yes), options, _err)
-
-
-def _devices(rig: CalibrationRig) -> dict[str, str]:
-    out = {}
-    for kind, device in (("camera", rig.camera), ("tracker", rig.tracker), ("robot", rig.robot)):
-        ident = getattr(device, "identity", None)
-        if ident is not None:
-            out[kind] = " ".join(str(getattr(ident, k, "")) for k in ("vendor", "model", "serial")).strip()
-    return out
-
-
-def write_results(session: CalibrationSession, calibrated_config: Path, work: Path, sim: bool,
-                  accept: bool = False) -> bool:
-    """The calibration into the cell config and the report beside the session; False when the
-    calibration was not written (the session keeps every result; running the command again retries). A failed
-    accuracy validation keeps the calibration out of the cell config unless ``accept``; the report is written."""
-    provenance = {"date": now_iso(), "session": str(session.path), "wizard_version": metadata.version("monoguide"),
-                  "devices": session.data.get("devices", {}), "sim": sim}
-    ok = True
-    failed = session.results().get("accuracy", {}).get("passed") is False
-    if failed and not accept:
-        _err(f"the accuracy validation FAILED: the calibration was NOT written into {calibrated_config} (the "
-             f"session keeps it). Look at the report, redo a step (--from STEP), or write it anyway with --accept")
-        ok = False
     else:
-        if failed:
-            _err("the accuracy validation FAILED; writing the calibration anyway (--accept)")
-        ok = _write_calibration(session, calibrated_config, provenance)
-    try:
-        session.data["report"] = str(write_report(work, session.data))
-        _err(f"report: {session.data['report']}")
-    except MonoguideError as exc:
-        _err(f"error {exc.code}: no report: {exc.message}")
-    session.save()
-    return ok
-
-
-def _write_calibration(session: CalibrationSession, calibrated_config: Path, provenance: dict[str, Any]) -> bool:
-    try:
-        session.data["calibration_file"] = str(write_calibration(calibrated_config, session.results(), provenance))
-        _err(f"calibration written into {session.data['calibration_file']}")
-    except MonoguideError as exc:
-        _err(f"error {exc.code}: the calibration was not written into {calibrated_config}: {exc.message}")
-        return False
-    return True
+        with open_cell_rig(cfg, config_path, options, ConsoleOperator(yes), _note) as rig:
+            yield rig

@@ -1,11 +1,12 @@
-"""Steps 4-7 of the calibration wizard (daemon/calibrate/_steps_camera.py) against the simulated devices: the
-simulated tracker process (the real serial adapter over its pty), the simulated UR controller process (the real
-UR adapter), a simulated camera that stands where that robot stands and sees the part or a placed target.
+"""Steps 4-7 of the calibration wizard (daemon/calibrate/_steps_part.py, _steps_check.py) against the simulated
+devices: the simulated tracker process (the real serial adapter over its pty), the simulated UR controller process
+(the real UR adapter), a simulated camera that stands where that robot stands and sees the part or a placed target.
 The operator acts on the simulated cell's truth. Results are checked against that truth; small counts keep it
 short (tolerances sized to them)."""
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
@@ -289,7 +290,9 @@ def test_verify_and_accuracy_against_the_truth(bench: Bench) -> None:
     cell, spec = bench.cell, bench.cell.spec
     centre = spec.points_w.mean(axis=0)
     earlier = _truth_earlier(cell)
+    threads_before = _runner_threads()
     verify = run_verify(rig, earlier)
+    assert _runner_threads() <= threads_before  # the step's cycle runner closed its worker threads
     # the reference part as the camera sees it, in CF; one measurement carries the robot's repeatability and
     # 0.1 px: the planner's 0.19 mm / 0.018 deg at the holes; the mean of 2 within 4 sigma
     T_cf_w0 = compose(spec.T_cf_si[0], np.array(verify["T_s1_w0"]))
@@ -324,6 +327,12 @@ def test_verify_and_accuracy_against_the_truth(bench: Bench) -> None:
     # a verdict against tolerances nothing meets is a result, not a refusal
     assert accuracy["passed"] is False and "RMS" in accuracy["markdown"]
     assert "grasp point" in accuracy["markdown"]
+    assert _runner_threads() <= threads_before
+
+
+def _runner_threads() -> set[threading.Thread]:
+    """The live worker threads of cycle runners (``monoguide-holes``, ``monoguide-images``)."""
+    return {t for t in threading.enumerate() if t.name.startswith(("monoguide-holes", "monoguide-images"))}
 
 
 def test_a_camera_measurement_that_fails_is_refused_with_what_was_being_done(bench: Bench) -> None:

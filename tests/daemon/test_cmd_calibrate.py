@@ -34,9 +34,12 @@ from monoguide.daemon.calibrate import (
     CalibrationSession,
     ConsoleOperator,
     open_session,
+    plan_steps,
 )
 from monoguide.daemon.cli import app
-from monoguide.daemon.cli.calibrate import EXIT_INTERRUPTED, EXIT_OK, EXIT_REFUSED, plan_steps, run_steps
+from monoguide.daemon.cli._policy import EXIT_FAILED as EXIT_REFUSED
+from monoguide.daemon.cli._policy import EXIT_INTERRUPTED, EXIT_OK
+from monoguide.daemon.cli.calibrate import run_steps
 from monoguide.daemon.config import CellConfig, CellFrameConfig, load_cell_config
 from monoguide.daemon.errors import CalibrationAborted, CalibrationSessionInvalid
 from monoguide.drivers.camera import CameraIdentity, CameraSettings, Frame
@@ -269,7 +272,7 @@ def test_cell_frame_refusals(make_rig: Any, truth: Truth, tmp_path: Path, capsys
     assert run_steps(rig, session, ["cell"]) == EXIT_REFUSED
     refused = CalibrationSession.load(tmp_path / SESSION_FILE).data["refused"]["cell"]
     assert refused["code"] == code and words in refused["message"] and refused["plc_code"] in (701, 703)
-    assert f"step 'cell' refused: {code}" in capsys.readouterr().err
+    assert f"{code} step 'cell' refused: " in capsys.readouterr().err
 
 
 def test_too_few_base_poses_refused_then_resumed_at_base(make_rig: Any, truth: Truth, tmp_path: Path) -> None:
