@@ -16,7 +16,7 @@ from monoguide.drivers.errors import ConfigError
 from monoguide.solver.calibration.target import TargetMarks, grid_marks
 
 CELL_FRAME_METHODS = ("best-fit", "3-2-1")
-# the wizard's steps (daemon/calibrate/_rig.py STEPS), the keys of [calibration.steps]
+# the wizard's steps, in order (daemon/calibrate/ takes them from here), the keys of [calibration.steps]
 CALIBRATION_STEPS = ("intrinsics", "cell", "base", "part", "sfi", "verify", "accuracy")
 
 
