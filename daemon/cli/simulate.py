@@ -3,9 +3,10 @@
 The same code path as a line: ``monoguide sim-cell`` (simulated PLC, robot controller with the part supply,
 tracker) and ``monoguide run`` (the service, with the simulated camera) as child processes over the real
 transports, N cycles, then the grasp error from the cell's truth log, the time split from the service's
-journal, errors by code, and the service's resident memory. Exit status: 0 when the run completed (the
-targets are printed, a benchmark: missing one is not a failure), 1 when the run itself failed or an offset
-was written for a failed cycle, 2 on a config error, 130 when interrupted.
+journal, errors by code, and the service's resident memory. Exit status (``daemon/cli/_policy.py``): 0 when the
+run completed (the targets are printed, a benchmark: missing one is not a failure), 1 when the run itself failed
+or an offset was written for a failed cycle, 2 on a config error, 130 when interrupted; a failure is one line,
+``CODE message``, last on standard error.
 """
 
 from __future__ import annotations
@@ -22,7 +23,10 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn
 from rich.progress import Progress as RichProgress
 
-from monoguide.daemon.cli._console import stderr_console, stdout_console
+from monoguide.daemon.cli._console import say, stderr_console, stdout_console
+from monoguide.daemon.cli._policy import EXIT_INTERRUPTED, fail
+from monoguide.daemon.cli._policy import report as report_error
+from monoguide.daemon.errors import SimulateError
 from monoguide.daemon.simulate import (
     Progress,
     RunOptions,
@@ -40,7 +44,6 @@ from monoguide.drivers.errors import ConfigError
 from monoguide.solver.errors import MonoguideError
 
 DEFAULT_CYCLES = 24  # about a minute on the simulated roof cell
-EXIT_RUN_FAILED, EXIT_CONFIG, EXIT_INTERRUPTED = 1, 2, 130
 MAX_CYCLE_ROWS = 60  # the human per-cycle table is left out for longer runs (--json and --report have it)
 
 
@@ -78,17 +81,15 @@ def simulate(
     """Run the simulated cell and the service for N cycles; report grasp error, time split, errors, memory."""
     err = stderr_console()
     if robot is not None and robot not in ("ur", "kuka"):
-        err.print(f"config error CONFIG_INVALID: --robot {robot!r}: expected ur or kuka")
-        raise typer.Exit(EXIT_CONFIG)
+        fail(ConfigError(f"--robot {robot!r}: expected ur or kuka"))
     names = tuple(" ".join(f.replace(":", " ").split()) for f in fault or ())
     faults = faults or bool(names)
     try:
         needed = cycles_needed_for_faults(names) if faults else 0
-    except ConfigError as exc:
-        err.print(f"config error {exc.code}: {exc.message}")
-        raise typer.Exit(EXIT_CONFIG) from exc
+    except ConfigError as error:
+        fail(error)
     if cycles < needed:
-        err.print(f"--faults: {cycles} cycles are too few for each fault between good cycles; running {needed}")
+        say(err, f"--faults: {cycles} cycles are too few for each fault between good cycles; running {needed}")
         cycles = needed
     work = Path(work_dir) if work_dir is not None else Path(tempfile.mkdtemp(prefix="monoguide-simulate-"))
     keep = work_dir is not None
@@ -98,25 +99,15 @@ def simulate(
         with _progress(err, cycles) as progress:
             result = run_simulation(options, progress)
     except KeyboardInterrupt:
-        err.print(f"interrupted: the service and the simulated cell are stopped; files in {work}")
+        say(err, f"interrupted: the service and the simulated cell are stopped; files in {work}")
         raise typer.Exit(EXIT_INTERRUPTED) from None
-    except ConfigError as exc:
-        err.print(f"config error {exc.code}: {exc.message}")
+    except ConfigError as error:
         _cleanup(work, keep)
-        raise typer.Exit(EXIT_CONFIG) from exc
-    except MonoguideError as exc:
-        err.print(f"error {exc.code}: {exc.message}")
-        err.print(f"the run's files (config, logs, journal, truth log) are kept in {work}")
-        raise typer.Exit(EXIT_RUN_FAILED) from exc
-    cycles_out = join_cycles(result.plc_records, result.journal_rows, result.truth, result.faults)
-    repeatability = _repeatability(result)
-    predicted = _prediction(result, repeatability, err)
-    summary = summarize(cycles_out, result.truth, result.journal_rows, result.faults, result.rss,
-                        Targets.for_run(perfect_robot, predicted["sigma_mm"], predicted["sigma_deg"]),
-                        result.logged_codes)
-    summary.update({"seed": _seed(result.cell.data), "robot": result.cell.data["robot"]["backend"],
-                    "perfect_robot": perfect_robot, **repeatability, "calibration": result.cell.calibration,
-                    "elapsed_s": round(result.elapsed_s, 1), "service_exit": result.service_exit})
+        fail(error)
+    except MonoguideError as error:
+        say(err, f"the run's files (config, logs, journal, truth log) are kept in {work}")
+        fail(error)
+    cycles_out, summary = _summary(result, perfect_robot)
     if json_out:
         for c in cycles_out:
             sys.stdout.write(json.dumps(c) + "\n")
@@ -127,17 +118,30 @@ def simulate(
     if report is not None:
         command = "monoguide simulate " + shlex.join(sys.argv[2:] if len(sys.argv) > 2 else [])
         files = write_report(report, cycles_out, summary, command)
-        err.print(f"report: {files[0]}")
+        say(err, f"report: {files[0]}")
     verdict = "met" if summary["targets_met"] else "NOT all met (see the targets table)"
-    err.print(f"{summary['cycles']} cycles in {summary['elapsed_s']:g} s; targets {verdict}")
+    say(err, f"{summary['cycles']} cycles in {summary['elapsed_s']:g} s; targets {verdict}")
     if summary["offsets_written_on_failure"]:
-        err.print(f"error: {summary['offsets_written_on_failure']} offsets were written for failed cycles; "
-                  f"files kept in {work}")
-        raise typer.Exit(EXIT_RUN_FAILED)
+        fail(SimulateError(f"{summary['offsets_written_on_failure']} offsets were written for failed cycles; "
+                           f"files kept in {work}"))
     _cleanup(work, keep)
 
 
 # --- private ------------------------------------------------------------------------------------
+
+
+def _summary(result: RunResult, perfect_robot: bool) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """The run's cycles (one per part the line played) and its summary, with the run's settings."""
+    cycles = join_cycles(result.plc_records, result.journal_rows, result.truth, result.faults)
+    repeatability = _repeatability(result)
+    predicted = _prediction(result, repeatability)
+    summary = summarize(cycles, result.truth, result.journal_rows, result.faults, result.rss,
+                        Targets.for_run(perfect_robot, predicted["sigma_mm"], predicted["sigma_deg"]),
+                        result.logged_codes)
+    summary.update({"seed": _seed(result.cell.data), "robot": result.cell.data["robot"]["backend"],
+                    "perfect_robot": perfect_robot, **repeatability, "calibration": result.cell.calibration,
+                    "elapsed_s": round(result.elapsed_s, 1), "service_exit": result.service_exit})
+    return cycles, summary
 
 
 def _repeatability(result: RunResult) -> dict[str, float]:
@@ -150,14 +154,13 @@ def _repeatability(result: RunResult) -> dict[str, float]:
             "unseen_repeatability_mm": (1.0 - seen) * mm, "unseen_repeatability_deg": (1.0 - seen) * deg}
 
 
-def _prediction(result: RunResult, repeatability: dict[str, float], err: Any) -> dict[str, float | None]:
+def _prediction(result: RunResult, repeatability: dict[str, float]) -> dict[str, float | None]:
     """The layout's predicted sigma at the grasp point for the run's cell and the repeatability nobody sees."""
     try:
         return predicted_grasp_sigma(result.cell.config, repeatability["unseen_repeatability_mm"],
                                      repeatability["unseen_repeatability_deg"])
-    except MonoguideError as exc:
-        err.print(f"no predicted sigma for this layout ({exc.code}: {exc.message}); the grasp target is the "
-                  f"paper's 0.5 mm")
+    except MonoguideError as error:
+        report_error(error, "no predicted sigma for this layout (the grasp target is the paper's 0.5 mm)")
         return {"sigma_mm": None, "sigma_deg": None}
 
 
@@ -195,13 +198,10 @@ class _progress:  # noqa: N801 - used as a context manager like a function
         if self.bar is not None:
             self.bar.update(self.task, completed=done, description=outcome)
         else:
-            self.err.print(f"cycle {done}/{total}: {outcome}")
+            say(self.err, f"cycle {done}/{total}: {outcome}")
 
     def _note(self, text: str) -> None:
-        if self.bar is not None:
-            self.bar.console.print(text)
-        else:
-            self.err.print(text)
+        say(self.bar.console if self.bar is not None else self.err, text)
 
 
 def _describe(record: dict[str, Any]) -> str:

@@ -22,13 +22,8 @@ from monoguide.daemon.figures import (
     new_figure,
     save_png,
 )
-from monoguide.daemon.simulate._summary import (
-    TIMING_KEYS,
-    calibration_text,
-    format_limit,
-    format_value,
-    grasp_target_text,
-)
+from monoguide.daemon.simulate._render import calibration_text, fixed, format_limit, format_value, grasp_target_text
+from monoguide.daemon.simulate._summary import TIMING_KEYS
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -57,18 +52,19 @@ def write_report(out_dir: Path, cycles: Sequence[dict[str, Any]], summary: dict[
 def markdown(cycles: Sequence[dict[str, Any]], summary: dict[str, Any], command: str, pictures: list[str]) -> str:
     lines = ["# monoguide simulate", "", f"`{command}`", "", "## Summary", "", "| | |", "|---|---|",
              f"| cycles | {summary['cycles']} ({summary['ok']} ok, {summary['failed']} failed) |",
-             f"| grasp error RMS | {_f(summary['grasp_rms_mm'], 4)} mm, {_f(summary['grasp_rms_deg'], 5)} deg "
+             f"| grasp error RMS | {fixed(summary['grasp_rms_mm'], 4)} mm, {fixed(summary['grasp_rms_deg'], 5)} deg "
              f"({summary['grasped']} grasped parts, from the truth log) |",
-             f"| grasp error max | {_f(summary['grasp_max_mm'], 4)} mm, {_f(summary['grasp_max_deg'], 5)} deg |",
+             f"| grasp error max | {fixed(summary['grasp_max_mm'], 4)} mm, {fixed(summary['grasp_max_deg'], 5)} deg |",
              f"| grasp target | {grasp_target_text(summary)} |",
              *([f"| calibration | {calibration_text(summary['calibration'])} |"] if summary.get("calibration") else []),
-             f"| overhead median | {_f(summary['overhead_ms_median'], 1)} ms (last frame in hand to offset "
+             f"| overhead median | {fixed(summary['overhead_ms_median'], 1)} ms (last frame in hand to offset "
              f"acknowledged) |",
-             f"| compute median | {_f(summary['compute_ms_median'], 1)} ms (hole finding + solve + checks) |",
-             f"| cycle median | {_f(summary['cycle_ms_median'], 0)} ms (trigger to DONE) |",
+             f"| compute median | {fixed(summary['compute_ms_median'], 1)} ms (hole finding + solve + checks) |",
+             f"| cycle median | {fixed(summary['cycle_ms_median'], 0)} ms (trigger to DONE) |",
              f"| errors by code | {', '.join(f'{k} {v}' for k, v in summary['errors'].items()) or 'none'} |",
              f"| offsets written on failure | {summary['offsets_written_on_failure']} |",
-             f"| service memory at the end | {_f(summary['rss_mb'], 1)} MB (max {_f(summary['rss_max_mb'], 1)} MB) |",
+             f"| service memory at the end | {fixed(summary['rss_mb'], 1)} MB "
+             f"(max {fixed(summary['rss_max_mb'], 1)} MB) |",
              "", "## Targets", "", "| target | value | limit | met |", "|---|---|---|---|"]
     lines += [f"| {t['name']} | {format_value(t['value'])} | {format_limit(t['limit'])} | "
               f"{'yes' if t['met'] else '**no**'} |"
@@ -81,12 +77,13 @@ def markdown(cycles: Sequence[dict[str, Any]], summary: dict[str, Any], command:
                   for f in summary["faults"]]
     lines += ["", "## Plots", ""] + [f"![{name}]({name})" for name in pictures]
     lines += ["", "## Time split, median over the good cycles (ms)", "", "| stage | ms |", "|---|---|"]
-    lines += [f"| {k} | {_f(v, 2)} |" for k, v in summary["timings_ms_median"].items()]
+    lines += [f"| {k} | {fixed(v, 2)} |" for k, v in summary["timings_ms_median"].items()]
     lines += ["", "## Cycles", "", "| cycle | status | code | fault | grasp mm | grasp deg | overhead ms | cycle ms |",
               "|---|---|---|---|---|---|---|---|"]
     lines += [f"| {c['cycle']} | {c['status']} | {c['error_code'] or ''} | {c['fault'] or ''} | "
-              f"{_f(c['grasp_error_mm'], 4)} | {_f(c['grasp_error_deg'], 5)} | "
-              f"{_f(c['timings_ms'].get('overhead'), 1)} | {_f(c['timings_ms'].get('cycle'), 0)} |" for c in cycles]
+              f"{fixed(c['grasp_error_mm'], 4)} | {fixed(c['grasp_error_deg'], 5)} | "
+              f"{fixed(c['timings_ms'].get('overhead'), 1)} | {fixed(c['timings_ms'].get('cycle'), 0)} |"
+              for c in cycles]
     return "\n".join(lines) + "\n"
 
 
@@ -171,7 +168,3 @@ def draw_offsets(cycles: Sequence[dict[str, Any]]) -> Figure:
         ax.legend(loc="upper right")
     figure.suptitle("Base offsets over the run, robot base frame: written against ideal")
     return figure
-
-
-def _f(value: float | None, digits: int) -> str:
-    return "-" if value is None else f"{value:.{digits}f}"

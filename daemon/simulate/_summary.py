@@ -1,39 +1,26 @@
-"""What a ``monoguide simulate`` run measured, from three independent witnesses.
-
-- the **line** (the simulated PLC's record of every part it played: outcome, status word, error code, the
-  offset it read from registers 16–27),
-- the **service's journal** (one row per cycle: result or error code, ``timings_s`` per stage),
-- the **truth log** of the simulated cell's part supply (per part: the true pose, the ideal offset, the
-  offset the robot actually applied and the grasp error it gave; per grasp the line's go asked for: whether the
-  robot program's interlock ran it or refused it, for a stale offset or for none).
-
-A cycle is one part the line played. Its journal row is found by the cycle counter the line read (register
-13), else by the part tag; the truth-log line of the part that was grasped is found by the offset the robot
-applied being the one the line read (or the journal's result, for a cycle that failed after writing). The
-grasp error comes from the truth log only; an offset the robot applied without a successful cycle is an
-``offsets_written_on_failure``.
+"""The summary of a ``monoguide simulate`` run, from its cycles (:func:`~._witnesses.join_cycles`) and its
+witnesses: counts, errors by code, the grasp error, the time split, the offsets written on failure, the grasps
+the robot's interlock ran or refused, the service's memory, each injected fault's outcome, and the targets with
+whether each was met (a benchmark: missing one does not fail the run).
 """
 
 from __future__ import annotations
 
-import json
 import math
 import statistics
 from collections import Counter
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
-from rich.console import Console
-from rich.table import Table
+from monoguide.daemon.simulate._fault_plan import InjectedFault
+from monoguide.daemon.simulate._witnesses import grasps, same_offset
 
 TIMING_KEYS = ("robot_motion", "exposure", "hole_finding", "solve", "checks", "offset_write", "plc_journal",
                "overhead", "cycle")
 COMPUTE_KEYS = ("hole_finding", "solve", "checks")
 PAPER_REQUIREMENT_MM = 0.5  # the paper's grasp requirement
 PERFECT_ROBOT_TARGET = (0.05, 0.005)  # mm, deg: the method's own error, no repeatability noise
-OFFSET_MATCH_TOL = 1e-3  # mm / deg: the line reads float32, the robot gets float64 or 6-decimal text
 NO_ACK_FAULT = "robot no-ack"  # the robot applies the offset but never acknowledges it (see docs/simulate.md)
 
 
@@ -58,82 +45,6 @@ class Targets:
             return cls(*PERFECT_ROBOT_TARGET, **predicted)
         mm = PAPER_REQUIREMENT_MM if predicted_sigma_mm is None else min(predicted_sigma_mm, PAPER_REQUIREMENT_MM)
         return cls(mm, predicted_sigma_deg, **predicted)
-
-
-@dataclass(frozen=True)
-class InjectedFault:
-    """A fault ``simulate --faults`` injected while the line played part ``cycle``."""
-
-    cycle: int
-    device: str  # plc | robot | camera
-    name: str
-    expected: tuple[str, ...]  # error codes any of which reports it
-
-    @property
-    def label(self) -> str:
-        return f"{self.device} {self.name}"
-
-
-def read_truth_log(path: Path, grasps: bool = False) -> list[dict[str, Any]]:
-    """The truth log's part lines (a missing file: none); ``grasps``: its grasp lines too (``{"grasp": {...}}``, one
-    per go the simulated line gave), in the file's order."""
-    if not Path(path).exists():
-        return []
-    lines = [json.loads(line) for line in Path(path).read_text().splitlines() if line.strip()]
-    return lines if grasps else [line for line in lines if "grasp" not in line]
-
-
-def grasps(truth: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """The grasp lines of the truth log (``{"grasp": {...}}``): one per go the simulated line gave."""
-    return [line["grasp"] for line in truth if isinstance(line.get("grasp"), dict)]
-
-
-def join_cycles(plc_records: Sequence[dict[str, Any]], journal_rows: Iterable[Any], truth: Sequence[dict[str, Any]],
-                faults: Sequence[InjectedFault] = ()) -> list[dict[str, Any]]:
-    """One JSON-able object per part the line played (see the module's doc); ``journal_rows`` are
-    :class:`~monoguide.daemon.service._journal.JournalRow`."""
-    rows = list(journal_rows)
-    by_number = {row.number: row for row in rows}
-    by_tag: dict[int, Any] = {}
-    for row in sorted(rows, key=lambda r: r.number):
-        if row.part_tag is not None:
-            by_tag[row.part_tag] = row
-    fault_at = {f.cycle: f for f in faults}
-    cycles = []
-    for index, record in enumerate(plc_records, start=1):
-        row = by_number.get(record.get("cycle_counter")) if record.get("cycle_counter") else None
-        if row is None or (row.part_tag is not None and row.part_tag != record.get("part_tag")):
-            row = by_tag.get(record.get("part_tag"))
-        written = record.get("offset_written")
-        line_ok = bool(record.get("result_ok")) and written is not None
-        if row is not None:
-            status = "ok" if row.status == "ok" and line_ok else "error"
-            code = row.error_code
-            plc_code = row.plc_code
-        else:
-            status = "ok" if line_ok else ("error" if record.get("error_code") else "no cycle")
-            code, plc_code = None, int(record.get("error_code") or 0)
-        part = _truth_for(written, truth) if written is not None else None
-        fault = fault_at.get(index)
-        cycles.append({
-            "cycle": index,
-            "part_tag": record.get("part_tag"),
-            "journal_cycle": None if row is None else row.number,
-            "status": status,
-            "error_code": code,
-            "plc_code": plc_code,
-            "line_outcome": record.get("outcome"),
-            "fault": None if fault is None else fault.label,
-            "truth_part": None if part is None else part.get("part"),
-            "grasp_error_mm": None if part is None else part.get("grasp_error_mm"),
-            "grasp_error_deg": None if part is None else part.get("grasp_error_deg"),
-            "offset_written": written,
-            "offset_ideal": None if part is None else part.get("offset_ideal"),
-            "offset_solved": None if row is None or not row.result else row.result.get("base_offset_xyzabc"),
-            "timings_ms": {} if row is None else {k: round(1000.0 * float(v), 3)
-                                                   for k, v in row.timings_s.items() if _finite(v)},
-        })
-    return cycles
 
 
 def summarize(cycles: Sequence[dict[str, Any]], truth: Sequence[dict[str, Any]], journal_rows: Iterable[Any] = (),
@@ -194,73 +105,7 @@ def summarize(cycles: Sequence[dict[str, Any]], truth: Sequence[dict[str, Any]],
     return summary
 
 
-def render(console: Console, cycles: Sequence[dict[str, Any]], summary: dict[str, Any], every_cycle: bool) -> None:
-    """The human tables: per cycle (when ``every_cycle``), the summary and the targets."""
-    if every_cycle:
-        table = Table(title="cycles", title_justify="left")
-        for name in ("cycle", "status", "code", "fault", "grasp mm", "grasp deg", "overhead ms", "cycle ms"):
-            table.add_column(name, justify="right" if name not in ("status", "code", "fault") else "left")
-        for c in cycles:
-            table.add_row(str(c["cycle"]), c["status"], c["error_code"] or (str(c["plc_code"] or "") or ""),
-                          c["fault"] or "", _fmt(c["grasp_error_mm"], 4), _fmt(c["grasp_error_deg"], 5),
-                          _fmt(c["timings_ms"].get("overhead"), 1), _fmt(c["timings_ms"].get("cycle"), 0))
-        console.print(table)
-    table = Table(title="summary", title_justify="left", show_header=False)
-    table.add_column("what")
-    table.add_column("value")
-    table.add_row("cycles", f"{summary['cycles']} ({summary['ok']} ok, {summary['failed']} failed)")
-    table.add_row("grasp error RMS", f"{_fmt(summary['grasp_rms_mm'], 4)} mm, {_fmt(summary['grasp_rms_deg'], 5)} deg"
-                  f" over {summary['grasped']} grasped parts")
-    table.add_row("grasp error max", f"{_fmt(summary['grasp_max_mm'], 4)} mm, {_fmt(summary['grasp_max_deg'], 5)} deg")
-    table.add_row("grasp target", grasp_target_text(summary))
-    if summary.get("calibration"):
-        table.add_row("calibration", calibration_text(summary["calibration"]))
-    split = ", ".join(f"{k} {_fmt(v, 1)}" for k, v in summary["timings_ms_median"].items() if v is not None)
-    table.add_row("time split, median ms", split or "-")
-    table.add_row("overhead median", f"{_fmt(summary['overhead_ms_median'], 1)} ms (last frame -> offset acknowledged)")
-    table.add_row("compute median", f"{_fmt(summary['compute_ms_median'], 1)} ms (hole finding + solve + checks)")
-    table.add_row("errors by code", ", ".join(f"{k} {v}" for k, v in summary["errors"].items()) or "none")
-    table.add_row("offsets written on failure", str(summary["offsets_written_on_failure"]))
-    if summary.get("grasps_ran") or summary.get("grasps_refused"):
-        table.add_row("grasps (robot interlock)", f"{summary['grasps_ran']} ran, {summary['grasps_refused']} refused "
-                      f"({summary['grasps_refused_stale']} for a stale offset)")
-    if summary["offsets_unacknowledged"]:
-        table.add_row("offsets applied, not acknowledged", f"{summary['offsets_unacknowledged']} (robot no-ack fault)")
-    table.add_row("service memory", f"{_fmt(summary['rss_mb'], 1)} MB resident at the end "
-                  f"(max {_fmt(summary['rss_max_mb'], 1)} MB)")
-    console.print(table)
-    if summary["faults"]:
-        faults = Table(title="injected faults", title_justify="left")
-        for name in ("cycle", "fault", "expected", "got", "reported", "READY after"):
-            faults.add_column(name)
-        for f in summary["faults"]:
-            faults.add_row(str(f["cycle"]), f["fault"], " | ".join(f["expected"]), f["got"] or "-",
-                           "yes" if f["reported"] else "NO", "yes" if f["back_ready"] else "NO")
-        console.print(faults)
-    targets = Table(title="targets", title_justify="left")
-    for name in ("target", "value", "limit", "met"):
-        targets.add_column(name)
-    for t in summary["targets"]:
-        targets.add_row(t["name"], format_value(t["value"]), format_limit(t["limit"]), "yes" if t["met"] else "NO")
-    console.print(targets)
-
-
 # --- private ------------------------------------------------------------------------------------
-
-
-def _truth_for(offset: Sequence[float] | None, truth: Sequence[dict[str, Any]]) -> dict[str, Any] | None:
-    if offset is None:
-        return None
-    for part in truth:
-        applied = part.get("offset_written")
-        if applied is not None and _same_offset(applied, offset):
-            return part
-    return None
-
-
-def _same_offset(a: Sequence[float], b: Sequence[float]) -> bool:
-    return len(a) == len(b) == 6 and all(abs(float(x) - float(y)) <= OFFSET_MATCH_TOL for x, y in zip(a, b,
-                                                                                                     strict=True))
 
 
 def _offsets_on_failure(cycles: Sequence[dict[str, Any]], truth: Sequence[dict[str, Any]],
@@ -272,10 +117,10 @@ def _offsets_on_failure(cycles: Sequence[dict[str, Any]], truth: Sequence[dict[s
     on_failure = unacknowledged = 0
     for part in truth:
         applied = part.get("offset_written")
-        if applied is None or any(_same_offset(applied, ok) for ok in ok_offsets):
+        if applied is None or any(same_offset(applied, ok) for ok in ok_offsets):
             continue
         row = next((r for r in rows if r.result and r.result.get("base_offset_xyzabc") is not None
-                    and _same_offset(applied, r.result["base_offset_xyzabc"])), None)
+                    and same_offset(applied, r.result["base_offset_xyzabc"])), None)
         if row is not None and fault_by_row.get(row.number) == NO_ACK_FAULT:
             unacknowledged += 1
         else:
@@ -331,43 +176,3 @@ def _rms(values: Sequence[float]) -> float | None:
 
 def _median(values: Sequence[float]) -> float | None:
     return round(statistics.median(values), 3) if values else None
-
-
-def _finite(value: Any) -> bool:
-    return isinstance(value, int | float) and math.isfinite(value)
-
-
-def grasp_target_text(summary: dict[str, Any]) -> str:
-    """The grasp target and where it comes from, in words."""
-    limit = f"RMS <= {_fmt(summary['grasp_target_mm'], 4)} mm"
-    if summary.get("grasp_target_deg") is not None:
-        limit += f", <= {_fmt(summary['grasp_target_deg'], 5)} deg"
-    predicted = (f"predicted sigma at the grasp point {_fmt(summary.get('predicted_sigma_mm'), 4)} mm, "
-                 f"{_fmt(summary.get('predicted_sigma_deg'), 5)} deg")
-    if summary.get("perfect_robot"):
-        return f"{limit} (--perfect-robot; {predicted} for the pixel noise alone)"
-    unseen = summary.get("unseen_repeatability_mm")
-    detail = "" if unseen is None else (f" with the repeatability the robot's report does not see, "
-                                        f"{_fmt(unseen, 4)} mm / {_fmt(summary.get('unseen_repeatability_deg'), 4)}"
-                                        f" deg per axis")
-    return f"{limit} ({predicted}{detail}; the paper's requirement {PAPER_REQUIREMENT_MM:g} mm)"
-
-
-def calibration_text(calibration: dict[str, Any]) -> str:
-    return f"{calibration['path']} ({', '.join(calibration['values'])}); the simulated cell keeps --config's truth"
-
-
-def format_limit(limit: float) -> str:
-    """A target's limit: as given, a computed one (a predicted sigma) with four significant digits."""
-    return str(limit) if isinstance(limit, int) or limit == round(limit, 3) else f"{limit:.4g}"
-
-
-def format_value(value: float | None) -> str:
-    """A target's value: counts as integers, measures with four digits."""
-    if isinstance(value, int):
-        return str(value)
-    return _fmt(value, 4)
-
-
-def _fmt(value: float | None, digits: int) -> str:
-    return "-" if value is None else f"{value:.{digits}f}"

@@ -24,8 +24,8 @@ import pytest
 from simcell_helpers import SIM_CELL, START_S, cell_config, start_sim_cell, stop
 
 from monoguide.daemon.assembly import build_robot, build_sim_cell
-from monoguide.daemon.cli.simcell import FAULT_COMMANDS
 from monoguide.daemon.config import CellConfig, load_cell_config
+from monoguide.daemon.simulate import FAULT_COMMANDS
 from monoguide.drivers.errors import RobotProtectiveStop
 from monoguide.drivers.modbus_plc import ModbusPlc
 from monoguide.drivers.plc_registers import CycleResult, PlcInputs, PlcOutputs, Status
@@ -59,7 +59,7 @@ def test_two_sim_cells_started_together_exactly_one_runs(tmp_path: Path) -> None
         assert loser.stderr is not None
         message = loser.stderr.read()
         assert loser.returncode == 1, message
-        assert "DEVICE_BUSY" in message and "already running" in message and str(state) in message
+        assert message.startswith("DEVICE_BUSY ") and "already running" in message and str(state) in message
         assert "Traceback" not in message
         assert _first_line(winner).startswith("tracker listening on"), "the winner does not run"
         time.sleep(0.3)
@@ -107,7 +107,7 @@ def test_a_directory_where_the_state_file_goes_is_a_clear_config_error(tmp_path:
         message = process.stderr.read()
     finally:
         stop(process)
-    assert "CONFIG_INVALID" in message and "is a directory" in message and str(tmp_path / which) in message
+    assert message.startswith("CONFIG_INVALID ") and "is a directory" in message and str(tmp_path / which) in message
     assert "Traceback" not in message
     assert (tmp_path / which).is_dir() and os.listdir(tmp_path / which) == []  # left as it was
 
@@ -247,7 +247,7 @@ def test_truth_log_needs_a_simulated_robot(tmp_path: Path) -> None:
         message = process.stderr.read()
     finally:
         stop(process)
-    assert "CONFIG_INVALID" in message and "--truth-log" in message and "sim-ur" in message
+    assert message.startswith("CONFIG_INVALID ") and "--truth-log" in message and "sim-ur" in message
     assert not (tmp_path / "t.jsonl").exists() and not (tmp_path / "s.json").exists()
 
 

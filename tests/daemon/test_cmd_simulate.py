@@ -219,6 +219,16 @@ def _simulate(tmp_path: Path, *args: str) -> tuple[subprocess.CompletedProcess[s
     return done, work
 
 
+def test_a_bad_option_ends_simulate_with_one_config_error_line_before_anything_starts(tmp_path: Path) -> None:
+    for args, said in ((("--robot", "abb"), "--robot 'abb': expected ur or kuka"),
+                       (("--fault", "robot wobble"), "--fault 'robot wobble': expected one of")):
+        done, work = _simulate(tmp_path, *args)
+        assert done.returncode == 2, done.stderr
+        assert len(done.stderr.splitlines()) == 1, done.stderr  # one line: the code, then why
+        assert done.stderr.startswith(f"CONFIG_INVALID {said}"), done.stderr
+        assert not work.exists()
+
+
 @pytest.mark.timeout(RUN_TIMEOUT_S + 30)
 def test_a_json_run_with_faults_reports_what_the_truth_log_and_the_journal_say(tmp_path: Path) -> None:
     """One short run covers the three end-to-end checks (the suite's time is shared): the summary against the
