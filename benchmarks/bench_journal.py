@@ -102,14 +102,14 @@ def _measure(state_dir: Path, rows: int, repeats: int, cold: bool) -> dict[str, 
 def _print(results: dict[int, dict[str, float]]) -> None:
     sizes = list(results)
     names = list(next(iter(results.values())))
-    header = f"{'operation':<10}" + "".join(f"{f'{n:,} rows':>14}" for n in sizes)
+    header = f"{'operation':<10}" + "".join(f"{f'{n:,} rows':>16}" for n in sizes)
     if len(sizes) > 1:
         header += f"{f'{sizes[-1]:,} / {sizes[0]:,}':>22}"
     print()
     print("median wall time per operation, ms")
     print(header)
     for name in names:
-        line = f"{name:<10}" + "".join(f"{results[n][name] * 1e3:>14.3f}" for n in sizes)
+        line = f"{name:<10}" + "".join(f"{results[n][name] * 1e3:>16.3f}" for n in sizes)
         if len(sizes) > 1:
             line += f"{results[sizes[-1]][name] / results[sizes[0]][name]:>21.2f}x"
         print(line)

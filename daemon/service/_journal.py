@@ -34,130 +34,45 @@ import json
 import os
 import sqlite3
 import time
-from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from monoguide.daemon.errors import (
     JournalEntryInvalid,
     JournalEntryMissing,
     JournalError,
-    JournalNotADatabase,
     JournalReplaced,
     JournalSchemaUnknown,
 )
-from monoguide.solver.errors import MonoguideError
+from monoguide.daemon.service._journal_schema import (
+    _COLUMNS,
+    _INDEX_SCHEMA,
+    _INTENT_COLUMNS,
+    _INTENT_SCHEMA,
+    _SCHEMA,
+    APPLICATION_ID,
+    BUSY_TIMEOUT_MS,
+    IMAGES_DIR,
+    INTENT_OUTCOMES,
+    JOURNAL_FILE,
+    LAST_CYCLES_QUERY,
+    MAX_NUMBER,
+    PRUNE_QUERY,
+    READABLE_VERSIONS,
+    SCHEMA_VERSION,
+    CycleEntry,
+    JournalRow,
+    OffsetIntent,
+    PruneReport,
+    SqliteErrors,
+    dumps,
+    file_size,
+    intent_from_row,
+    outcome_of,
+    row_from,
+)
 
-SCHEMA_VERSION = 2  # 2: the offset_intent table (version 1 journals are upgraded in place when opened)
-READABLE_VERSIONS = (1, 2)
-APPLICATION_ID = 0x4D4F4E4F  # "MONO": marks the file as a monoguide journal for `file` and for us
-JOURNAL_FILE = "journal.sqlite3"
-IMAGES_DIR = "images"
-MAX_NUMBER = 2**63 - 1  # SQLite INTEGER
-BUSY_TIMEOUT_MS = 5000  # every wait has a timeout: another process holding the write lock
-
-_SCHEMA = """
-CREATE TABLE cycle (
-    number INTEGER PRIMARY KEY AUTOINCREMENT,  -- the cycle counter; never reused
-    started_at REAL NOT NULL,                  -- Unix time, s
-    finished_at REAL NOT NULL,
-    job INTEGER,                               -- PLC register 1
-    part_tag INTEGER,                          -- PLC register 3
-    status TEXT NOT NULL CHECK (status IN ('ok', 'error')),
-    error_code TEXT,
-    plc_code INTEGER NOT NULL,                 -- 0 when ok
-    error_message TEXT,
-    record_json TEXT,                          -- the measurement record; null if the cycle failed before one
-    result_json TEXT,                          -- the solve result; null on error before solving
-    timings_json TEXT NOT NULL,                -- {"measuring": s, "solving": s, ...}
-    poses_json TEXT NOT NULL,                  -- robot's actual T_b_f at each capture, 4x4 lists
-    images_json TEXT NOT NULL,                 -- image paths, relative to the state directory when inside it
-    images_pruned_at REAL                      -- when prune_images deleted this cycle's image files
-);
-"""
-
-_INTENT_SCHEMA = """
-CREATE TABLE IF NOT EXISTS offset_intent (
-    cycle INTEGER PRIMARY KEY,                 -- the number of the cycle whose offset this is
-    sequence INTEGER NOT NULL,                 -- the robot request's sequence number
-    offset_json TEXT NOT NULL,                 -- {"registers": [x, y, z mm, A, B, C deg], "D_b": 4x4}
-    intended_at REAL NOT NULL,                 -- Unix time, s: committed before the offset was sent
-    outcome TEXT CHECK (outcome IN ('acknowledged', 'refused', 'held', 'not_held')),  -- null: not settled
-    cleared INTEGER NOT NULL DEFAULT 0,        -- 1: monoguide then cleared the robot's offset (command 3)
-    settled_at REAL,
-    detail TEXT
-);
-"""
-INTENT_OUTCOMES = ("acknowledged", "refused", "held", "not_held")
-
-# prune_images looks only at cycles whose images are still on disk: a partial index over those rows, so its cost
-# follows the images kept (bounded by [service] images_max_mb), not the journal's length
-_INDEX_SCHEMA = """
-CREATE INDEX IF NOT EXISTS cycle_images_kept ON cycle (number)
-    WHERE images_pruned_at IS NULL AND images_json <> '[]';
-"""
-_IMAGES_KEPT = "images_pruned_at IS NULL AND images_json <> '[]'"
-
-
-@dataclass(frozen=True)
-class CycleEntry:
-    """One finished cycle as the journal stores it. ``error`` set means the cycle failed."""
-
-    started_at: float
-    finished_at: float
-    job: int | None = None
-    part_tag: int | None = None
-    record: dict[str, Any] | None = None
-    result: dict[str, Any] | None = None
-    error: MonoguideError | None = None
-    timings_s: dict[str, float] = field(default_factory=dict)
-    poses_at_capture: list[list[list[float]]] = field(default_factory=list)
-    image_paths: list[str] = field(default_factory=list)
-
-
-@dataclass(frozen=True)
-class JournalRow:
-    """A cycle read back from the journal."""
-
-    number: int
-    started_at: float
-    finished_at: float
-    job: int | None
-    part_tag: int | None
-    status: str
-    error_code: str | None
-    plc_code: int
-    error_message: str | None
-    record: dict[str, Any] | None
-    result: dict[str, Any] | None
-    timings_s: dict[str, float]
-    poses_at_capture: list[list[list[float]]]
-    image_paths: list[str]
-    images_pruned_at: float | None
-
-
-@dataclass(frozen=True)
-class OffsetIntent:
-    """An offset committed before it was sent to the robot, and what became of it (``outcome`` None: not
-    settled yet — the robot may hold it)."""
-
-    cycle: int
-    sequence: int
-    registers: tuple[float, ...]  # x, y, z (mm), A, B, C (deg): PLC registers 16-27
-    D_b: list[list[float]]
-    intended_at: float
-    outcome: str | None
-    cleared: bool
-    settled_at: float | None
-    detail: str | None
-
-
-@dataclass(frozen=True)
-class PruneReport:
-    cycles: int
-    files: int
-    bytes_freed: int
+__all__ = ["APPLICATION_ID", "INTENT_OUTCOMES", "JOURNAL_FILE", "LAST_CYCLES_QUERY", "PRUNE_QUERY", "SCHEMA_VERSION",
+           "CycleEntry", "Journal", "JournalRow", "OffsetIntent", "PruneReport"]
 
 
 class Journal:
@@ -195,12 +110,12 @@ class Journal:
         Only after this returns may the PLC be told DONE. Raises :class:`JournalEntryInvalid` for an entry
         that contradicts itself and :class:`JournalError` when SQLite fails (nothing is then committed).
         """
-        status, error_code, plc_code, message = _outcome(entry)
+        status, error_code, plc_code, message = outcome_of(entry)
         row = (
             number, entry.started_at, entry.finished_at, entry.job, entry.part_tag, status, error_code, plc_code,
-            message, _dumps("record", entry.record), _dumps("result", entry.result),
-            _dumps("timings_s", entry.timings_s), _dumps("poses_at_capture", entry.poses_at_capture),
-            _dumps("image_paths", [self._relative(p) for p in entry.image_paths]),
+            message, dumps("record", entry.record), dumps("result", entry.result),
+            dumps("timings_s", entry.timings_s), dumps("poses_at_capture", entry.poses_at_capture),
+            dumps("image_paths", [self._relative(p) for p in entry.image_paths]),
         )
         self.check_identity()
         with self._sqlite("commit a cycle"), self._db:
@@ -222,7 +137,7 @@ class Journal:
     def commit_intent(self, cycle: int, sequence: int, registers: tuple[float, ...], D_b: list[list[float]]) -> None:
         """Commit the offset of cycle ``cycle`` (request ``sequence``) before it is sent: when this raises,
         nothing may be sent. ``registers``: x y z (mm) A B C (deg) as the PLC shows them; ``D_b`` the 4x4."""
-        offset = _dumps("offset", {"registers": [float(v) for v in registers], "D_b": D_b})
+        offset = dumps("offset", {"registers": [float(v) for v in registers], "D_b": D_b})
         self.check_identity()
         with self._sqlite(f"commit the offset intent of cycle {cycle}"), self._db:
             self._db.execute("INSERT INTO offset_intent (cycle, sequence, offset_json, intended_at)"
@@ -239,14 +154,14 @@ class Journal:
         with self._sqlite(f"read the offset intent of cycle {cycle}"):
             found = self._db.execute(f"SELECT {_INTENT_COLUMNS} FROM offset_intent WHERE cycle = ?",
                                      (cycle,)).fetchone()
-        return None if found is None else _intent(found)
+        return None if found is None else intent_from_row(found)
 
     def unsettled_intents(self) -> list[OffsetIntent]:
         """Intents without an outcome, oldest first: offsets the robot may hold."""
         with self._sqlite("list unsettled offset intents"):
             rows = self._db.execute(f"SELECT {_INTENT_COLUMNS} FROM offset_intent WHERE outcome IS NULL"
                                     " ORDER BY cycle").fetchall()
-        return [_intent(found) for found in rows]
+        return [intent_from_row(found) for found in rows]
 
     def last_sequence(self) -> int:
         """The robot sequence number of the newest intent (0: none)."""
@@ -288,7 +203,7 @@ class Journal:
             if found is None:
                 raise JournalEntryMissing(f"journal {self.path}: no cycle {number}")
             self._db.execute("UPDATE cycle SET timings_json = ? WHERE number = ?",
-                             (_dumps("timings_s", {**json.loads(found[0]), **timings_s}), number))
+                             (dumps("timings_s", {**json.loads(found[0]), **timings_s}), number))
 
     # --- reading ------------------------------------------------------------------------------------
 
@@ -306,7 +221,7 @@ class Journal:
             found = self._db.execute(f"SELECT {_COLUMNS} FROM cycle WHERE number = ?", (number,)).fetchone()
         if found is None:
             raise JournalEntryMissing(f"journal {self.path}: no cycle {number} (counter {self.cycle_counter()})")
-        return _row(found)
+        return row_from(found)
 
     def has_cycle(self, number: int) -> bool:
         with self._sqlite(f"look for cycle {number}"):
@@ -316,7 +231,7 @@ class Journal:
         """The ``count`` most recent cycles, newest first."""
         with self._sqlite("list cycles"):
             rows = self._db.execute(LAST_CYCLES_QUERY, (MAX_NUMBER, count)).fetchall()
-        return [_row(found) for found in rows]
+        return [row_from(found) for found in rows]
 
     def integrity_check(self) -> str:
         """SQLite's ``PRAGMA integrity_check``: ``"ok"`` or the damage it found."""
@@ -342,7 +257,7 @@ class Journal:
             paths = json.loads(images)
             for stored in paths:
                 if stored not in sizes:
-                    sizes[stored] = _size(self._absolute(stored))
+                    sizes[stored] = file_size(self._absolute(stored))
             cycles.append((number, finished_at, paths))
         total = sum(sizes[stored] for _, _, paths in cycles for stored in paths)
         pruned: list[int] = []
@@ -418,8 +333,8 @@ class Journal:
         stat = os.stat(self.path)
         return stat.st_dev, stat.st_ino
 
-    def _sqlite(self, doing: str) -> _SqliteErrors:
-        return _SqliteErrors(self.path, doing)
+    def _sqlite(self, doing: str) -> SqliteErrors:
+        return SqliteErrors(self.path, doing)
 
     def _relative(self, path: str | Path) -> str:
         path = Path(path)
@@ -433,72 +348,3 @@ class Journal:
         return path if path.is_absolute() else self.state_dir / path
 
 
-class _SqliteErrors:
-    """Turns an ``sqlite3.Error`` into a :class:`JournalError` naming the file and what was being done."""
-
-    def __init__(self, path: Path, doing: str) -> None:
-        self.path, self.doing = path, doing
-
-    def __enter__(self) -> None:
-        return None
-
-    def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None, _tb: object) -> None:
-        if isinstance(exc, sqlite3.DatabaseError) and "not a database" in str(exc):
-            raise JournalNotADatabase(f"journal {self.path}: not an SQLite database (SQLite: {exc});"
-                                      " corrupt or another file — move it away to start a new journal") from exc
-        if isinstance(exc, sqlite3.Error):
-            raise JournalError(f"journal {self.path}: cannot {self.doing} (SQLite: {exc})") from exc
-
-
-_COLUMNS = ("number, started_at, finished_at, job, part_tag, status, error_code, plc_code, error_message,"
-            " record_json, result_json, timings_json, poses_json, images_json, images_pruned_at")
-
-
-# a search from the newest number down (the primary key), never a scan of the table
-LAST_CYCLES_QUERY = f"SELECT {_COLUMNS} FROM cycle WHERE number <= ? ORDER BY number DESC LIMIT ?"
-PRUNE_QUERY = f"SELECT number, finished_at, images_json FROM cycle WHERE {_IMAGES_KEPT} ORDER BY number"
-_INTENT_COLUMNS = "cycle, sequence, offset_json, intended_at, outcome, cleared, settled_at, detail"
-
-
-def _intent(found: Sequence[Any]) -> OffsetIntent:
-    cycle, sequence, offset, intended_at, outcome, cleared, settled_at, detail = found
-    data = json.loads(offset)
-    return OffsetIntent(cycle, sequence, tuple(data["registers"]), data["D_b"], intended_at, outcome, bool(cleared),
-                        settled_at, detail)
-
-
-def _outcome(entry: CycleEntry) -> tuple[str, str | None, int, str | None]:
-    if entry.error is not None:
-        return "error", entry.error.code, entry.error.plc_code, entry.error.message
-    if entry.result is None:
-        raise JournalEntryInvalid("cycle entry: neither a result nor an error; a finished cycle has one")
-    return "ok", None, 0, None
-
-
-def _dumps(name: str, value: Any) -> str | None:
-    """Strict JSON (no NaN, no numpy arrays): the journal is read back by other programs."""
-    if value is None:
-        return None
-    try:
-        return json.dumps(value, allow_nan=False)
-    except (TypeError, ValueError) as exc:
-        raise JournalEntryInvalid(f"cycle entry: {name} is not plain JSON ({exc}); nothing written") from exc
-
-
-def _loads(text: str | None) -> Any:
-    return None if text is None else json.loads(text)
-
-
-def _row(found: Sequence[Any]) -> JournalRow:
-    (number, started_at, finished_at, job, part_tag, status, error_code, plc_code, error_message,
-     record, result, timings, poses, images, pruned_at) = found
-    return JournalRow(number, started_at, finished_at, job, part_tag, status, error_code, plc_code, error_message,
-                      _loads(record), _loads(result), json.loads(timings), json.loads(poses), json.loads(images),
-                      pruned_at)
-
-
-def _size(path: Path) -> int:
-    try:
-        return path.stat().st_size
-    except FileNotFoundError:
-        return 0
