@@ -46,7 +46,6 @@ import logging
 import math
 import os
 from dataclasses import dataclass, field
-from typing import Protocol
 
 import numpy as np
 
@@ -62,6 +61,17 @@ from monoguide.drivers.robot import (
 )
 from monoguide.drivers.robot_program import RULE
 from monoguide.drivers.sim.part_supply import PartSupply
+from monoguide.drivers.sim.robot_requests import (  # re-exported: the controllers and tests import them from here
+    CUT_DOWN_S,
+    FAULT_ACTIONS,
+    FAULT_MODES,
+    AppliedOffset,
+    FaultCommand,
+    Grasp,
+    Request,
+    RequestSource,
+    parse_fault,
+)
 from monoguide.drivers.sim.robot_truth import (  # re-exported: the simulated camera and tests import them from here
     TRUTH_FORMAT,
     RobotSpec,
@@ -75,76 +85,17 @@ from monoguide.drivers.sim.robot_truth import (  # re-exported: the simulated ca
 )
 from monoguide.solver.frames import compose, invert, make_T, matrix_to_rotvec, rotvec_to_matrix
 
-__all__ = ["FAULT_ACTIONS", "FAULT_MODES", "TRUTH_FORMAT", "AppliedOffset", "FaultCommand", "Grasp", "Request",
-           "RequestSource", "RobotSpec", "SimRobotProgram", "file_mtime", "follow_truth", "grasp_error",
+__all__ = ["CUT_DOWN_S", "FAULT_ACTIONS", "FAULT_MODES", "TRUTH_FORMAT", "AppliedOffset", "FaultCommand", "Grasp",
+           "Request", "RequestSource", "RobotSpec", "SimRobotProgram", "file_mtime", "follow_truth", "grasp_error",
            "load_robot_spec", "offset_size", "parse_fault", "read_truth", "write_truth"]
 
 log = logging.getLogger("monoguide.sim.robot")
 
-FAULT_MODES = ("none", "stall", "drop", "protective-stop", "never-reach", "no-ack", "program-stopped")
-FAULT_ACTIONS = ("restart", "cut-after-offset")  # one-shot: they act once, and leave the mode in force as it was
 MAX_OFFSETS_KEPT = 200
 RESTART_DOWN_S = 0.3  # Stop ... Play: how long the program is not running
-CUT_DOWN_S = 1.0  # cut-after-offset: how long new connections are closed at once (default)
-MAX_CUT_MS = 60_000.0
 # the program's own limits for an offset, as the templates have them: the grasp point's shift and the rotation
 MAX_OFFSET_SHIFT_MM = 100.0
 MAX_OFFSET_TURN_DEG = 10.0
-
-
-@dataclass(frozen=True)
-class Request:
-    """One request as the program read it; ``D_b`` None: a field could not be read (KUKA: a RET not ok)."""
-
-    sequence: int
-    command: int
-    pose_number: int
-    D_b: np.ndarray | None
-    received: tuple[float, ...]  # the offset as it arrived, in the wire's units
-
-
-class RequestSource(Protocol):
-    """Where the program reads its requests: UR the input registers (``level``: the same request until the daemon
-    writes another), KUKA the EKI buffer (each message once)."""
-
-    level: bool
-
-    def next_request(self) -> Request | None: ...
-
-
-@dataclass(frozen=True)
-class FaultCommand:
-    """A fault command line, checked: its name and, for ``cut-after-offset``, MS and DOWN_S."""
-
-    name: str
-    after_ms: float = 0.0
-    down_s: float = CUT_DOWN_S
-
-
-@dataclass
-class AppliedOffset:
-    sequence: int
-    part: int
-    received: tuple[float, ...]  # as it arrived on the wire, in the wire's units
-    D_b: np.ndarray
-    grasp_error_mm: float
-    grasp_error_deg: float
-
-
-@dataclass
-class Grasp:
-    """A grasp the go asked for: run with the held offset, or refused by the interlock (``reason``)."""
-
-    part: int
-    held_sequence: int
-    outcome: str  # "ran" | "refused"
-    reason: str | None  # refused: "stale offset" (one is held, not valid) | "no offset"
-    grasp_error_mm: float | None  # ran: the held offset on the part in the cell now; refused: what it would have been
-    grasp_error_deg: float | None
-    at_s: float
-
-    def record(self) -> dict[str, object]:
-        return dataclasses.asdict(self)
 
 
 @dataclass
@@ -495,27 +446,6 @@ class SimRobotProgram:
 
 
 # --- functions ------------------------------------------------------------------------------------
-
-
-def parse_fault(text: str) -> FaultCommand:
-    """A fault command line -> :class:`FaultCommand`; ValueError naming what is wrong."""
-    name, *args = text.split()
-    if name not in FAULT_MODES + FAULT_ACTIONS:
-        raise ValueError(f"fault {name!r}: expected one of {', '.join(FAULT_MODES + FAULT_ACTIONS)}")
-    if name != "cut-after-offset":
-        if args:
-            raise ValueError(f"fault {name} takes nothing more, got {' '.join(args)!r}")
-        return FaultCommand(name)
-    if not 1 <= len(args) <= 2:
-        raise ValueError(f"fault cut-after-offset takes MS [DOWN_S], got {' '.join(args) or 'nothing'}")
-    try:
-        after_ms, down_s = float(args[0]), float(args[1]) if len(args) == 2 else CUT_DOWN_S
-    except ValueError as exc:
-        raise ValueError(f"fault cut-after-offset {' '.join(args)}: MS and DOWN_S are numbers") from exc
-    if not (0 <= after_ms <= MAX_CUT_MS and 0 < down_s <= MAX_CUT_MS / 1000):
-        raise ValueError(f"fault cut-after-offset {' '.join(args)}: MS 0..{MAX_CUT_MS:g}, DOWN_S above 0 up to "
-                         f"{MAX_CUT_MS / 1000:g}")
-    return FaultCommand(name, after_ms, down_s)
 
 
 def _interpolate(T_from: np.ndarray, T_to: np.ndarray, s: float) -> np.ndarray:
