@@ -43,7 +43,7 @@ def open_journal(given_state_dir: Path | str | None) -> Journal:
     directory = existing_state_dir(given_state_dir)
     if not (directory / JOURNAL_FILE).is_file():
         raise NoJournal(f"no journal in {directory} ({JOURNAL_FILE} missing): no cycle has finished here")
-    return Journal(directory)
+    return Journal(directory, read_only=True)
 
 
 def cycle_summary(row: JournalRow) -> dict[str, Any]:

@@ -76,12 +76,25 @@ __all__ = ["APPLICATION_ID", "INTENT_OUTCOMES", "JOURNAL_FILE", "LAST_CYCLES_QUE
 
 
 class Journal:
-    """The journal of one state directory. Open it once per process; the service is the only writer."""
+    """The journal of one state directory. Open it once per process; the service is the only writer.
 
-    def __init__(self, state_dir: Path | str) -> None:
+    ``read_only=True`` is every reader's open (``journal``, ``status``, the operator page, the plant
+    interfaces): SQLite's ``mode=ro``, nothing created, upgraded or locked for writing; a write raises
+    ``sqlite3.OperationalError`` turned into :class:`JournalError`. A WAL journal is read through its ``-shm``
+    file, which the service keeps while it runs; where that file is missing and cannot be created (the service
+    stopped, a state directory the reader may not write), the file is opened ``immutable`` — nobody writes it then.
+    """
+
+    def __init__(self, state_dir: Path | str, *, read_only: bool = False) -> None:
         self.state_dir = Path(state_dir)
         self.path = self.state_dir / JOURNAL_FILE
         self.images_dir = self.state_dir / IMAGES_DIR
+        self.read_only = read_only
+        if read_only:
+            self._db = self._open_read_only()
+            self._identity = self._file_identity()
+            self._image_sizes: dict[str, int] = {}
+            return
         try:
             self.images_dir.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -280,6 +293,33 @@ class Journal:
         return PruneReport(len(pruned), files, freed)
 
     # --- private ------------------------------------------------------------------------------------
+
+    def _open_read_only(self) -> sqlite3.Connection:
+        if not self.path.is_file():
+            raise JournalError(f"journal {self.path}: no such file")
+        uri = self.path.resolve().as_uri()
+        db = None
+        for query in ("mode=ro", "mode=ro&immutable=1"):
+            try:
+                db = sqlite3.connect(f"{uri}?{query}", uri=True, timeout=BUSY_TIMEOUT_MS / 1000,
+                                     check_same_thread=False)
+                with self._sqlite("open read-only"):
+                    version = db.execute("PRAGMA user_version").fetchone()[0]
+                    application_id = db.execute("PRAGMA application_id").fetchone()[0]
+                break
+            except (sqlite3.Error, JournalError) as exc:
+                if db is not None:
+                    db.close()
+                    db = None
+                if query.endswith("immutable=1"):
+                    raise JournalError(f"journal {self.path}: cannot open read-only: {exc}") from exc
+        assert db is not None
+        if application_id != APPLICATION_ID or version not in READABLE_VERSIONS:
+            db.close()
+            raise JournalSchemaUnknown(f"journal {self.path}: not a monoguide journal this monoguide reads "
+                                       f"(application_id {application_id:#x}, schema version {version}; reads "
+                                       f"{', '.join(map(str, READABLE_VERSIONS))})")
+        return db
 
     def _open(self) -> sqlite3.Connection:
         try:

@@ -49,7 +49,7 @@ def read_journal_rows(state_dir: Path) -> list[JournalRow]:
     """Every cycle of the service's journal in ``state_dir``, oldest first (no journal: none)."""
     if not (state_dir / JOURNAL_FILE).exists():
         return []
-    with Journal(state_dir) as journal:
+    with Journal(state_dir, read_only=True) as journal:
         return list(reversed(journal.last_cycles(journal.cycle_counter() or 1)))
 
 

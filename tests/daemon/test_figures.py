@@ -13,7 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from figure_checks import describe
+from helpers.figure_checks import describe
 from PIL import Image
 
 from monoguide.daemon.figures import DPI, bar_chart, draw_style, label_points, new_figure, outline, save_png

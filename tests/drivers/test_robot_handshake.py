@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from robot_helpers import make_adapter, sim_cell, truth, wait_for
+from helpers.robots import make_adapter, sim_cell, truth, wait_for
 
 from monoguide.drivers import kuka_protocol as kuka
 from monoguide.drivers import rtde_protocol as rtde

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from robot_helpers import (
+from helpers.robots import (
     ADAPTER_OPTIONS,
     FAILURE_MODES,
     assert_within_repeatability,

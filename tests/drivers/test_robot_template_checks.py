@@ -3,11 +3,23 @@ by the check that guards against it (the checks of ``test_robot_templates.py``, 
 
 from __future__ import annotations
 
+import importlib.util
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import pytest
-import test_robot_templates as checks
-from template_parsing import split_lines
+from helpers.template_parsing import split_lines
+
+
+def _load_checks():
+    """The sibling test module, loaded by its path (tests are imported by path, not as packages)."""
+    spec = importlib.util.spec_from_file_location("robot_template_checks", Path(__file__).with_name("test_robot_templates.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+checks = _load_checks()
 
 UR_TEXT = checks.UR_SCRIPT.read_text()
 KRL_TEXT = checks.KRL_SRC.read_text()
@@ -110,7 +122,7 @@ def test_each_eki_xml_defect_is_caught(good: str, bad: str) -> None:
 
 
 def test_a_data_list_variable_without_a_value_is_caught() -> None:
-    from template_parsing import krl_dat
+    from helpers.template_parsing import krl_dat
 
     text = checks.KRL_DAT.read_text()
     assert krl_dat(split_lines(text, ";"))[1] == []

@@ -11,7 +11,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
-from template_parsing import (
+from helpers.template_parsing import (
     KRL_KEYWORDS,
     URSCRIPT_KEYWORDS,
     Line,

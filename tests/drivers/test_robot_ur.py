@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from robot_helpers import (
+from helpers.robots import (
     ADAPTER_OPTIONS,
     FAILURE_MODES,
     SIM_CELL,

@@ -1,0 +1,10 @@
+"""The repository's own files, for a test wherever it sits in tests/."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+ROOT = Path(__file__).parents[2]
+CONFIG_DIR = ROOT / "config"
+SIM_CELL = CONFIG_DIR / "sim-cell.toml"  # the simulated paper roof cell: the truth of every simulated device
+EXAMPLE_RECORD = ROOT / "examples" / "example-record.json"
