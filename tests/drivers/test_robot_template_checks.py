@@ -13,7 +13,8 @@ from helpers.template_parsing import split_lines
 
 def _load_checks():
     """The sibling test module, loaded by its path (tests are imported by path, not as packages)."""
-    spec = importlib.util.spec_from_file_location("robot_template_checks", Path(__file__).with_name("test_robot_templates.py"))
+    path = Path(__file__).with_name("test_robot_templates.py")
+    spec = importlib.util.spec_from_file_location("robot_template_checks", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

@@ -385,7 +385,7 @@ def test_a_reader_opens_read_only_sees_the_writers_commits_and_cannot_write(tmp_
     writer.commit_cycle(expected_entry(3, record))  # the writer goes on while the reader is open
     assert reader.cycle_counter() == 3
     _assert_row_is(reader, 3)
-    with pytest.raises(JournalError, match="readonly|read-only"):
+    with pytest.raises(JournalError, match=r"readonly|read-only"):
         reader.commit_cycle(expected_entry(4, record))
     assert writer.cycle_counter() == 3 and sorted(p.name for p in tmp_path.iterdir()) == files_before
     reader.close()
