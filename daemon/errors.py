@@ -279,3 +279,32 @@ class OutputNotWritten(MonoguideError):
 
     code = "OUTPUT_NOT_WRITTEN"
     plc_code = 661
+
+
+class WebConfigError(ConfigError):
+    """``monoguide web`` cannot start as asked (a usage error: exit 2, nothing served)."""
+
+    code = "WEB_CONFIG_INVALID"
+    plc_code = 670
+
+
+class WebAuthRequired(WebConfigError):
+    """A ``--bind`` address other than loopback without ``--users`` or ``--token-file``: the page would be open
+    to the plant network."""
+
+    code = "WEB_AUTH_REQUIRED"
+    plc_code = 671
+
+
+class WebCredentialsInvalid(WebConfigError):
+    """The users file or the token file cannot be read or is not in its format (the message names the line)."""
+
+    code = "WEB_CREDENTIALS_INVALID"
+    plc_code = 672
+
+
+class WebServerFailed(MonoguideError):
+    """The page's server could not listen (the address in use, not this machine's) or ended on an error."""
+
+    code = "WEB_SERVER_FAILED"
+    plc_code = 673

@@ -43,6 +43,7 @@ from monoguide.daemon.errors import (
     JournalReplaced,
     JournalSchemaUnknown,
 )
+from monoguide.daemon.service._journal_query import CycleQuery, error_codes, find_cycles
 from monoguide.daemon.service._journal_schema import (
     _COLUMNS,
     _INDEX_SCHEMA,
@@ -51,6 +52,7 @@ from monoguide.daemon.service._journal_schema import (
     _SCHEMA,
     APPLICATION_ID,
     BUSY_TIMEOUT_MS,
+    FILTER_INDEX_SCHEMA,
     IMAGES_DIR,
     INTENT_OUTCOMES,
     JOURNAL_FILE,
@@ -72,7 +74,7 @@ from monoguide.daemon.service._journal_schema import (
 )
 
 __all__ = ["APPLICATION_ID", "INTENT_OUTCOMES", "JOURNAL_FILE", "LAST_CYCLES_QUERY", "PRUNE_QUERY", "SCHEMA_VERSION",
-           "CycleEntry", "Journal", "JournalRow", "OffsetIntent", "PruneReport"]
+           "CycleEntry", "CycleQuery", "Journal", "JournalRow", "OffsetIntent", "PruneReport"]
 
 
 class Journal:
@@ -90,6 +92,7 @@ class Journal:
         self.path = self.state_dir / JOURNAL_FILE
         self.images_dir = self.state_dir / IMAGES_DIR
         self.read_only = read_only
+        self.immutable = False  # read-only and opened `immutable`: it sees no later commit (reopen it then)
         if read_only:
             self._db = self._open_read_only()
             self._identity = self._file_identity()
@@ -246,6 +249,17 @@ class Journal:
             rows = self._db.execute(LAST_CYCLES_QUERY, (MAX_NUMBER, count)).fetchall()
         return [row_from(found) for found in rows]
 
+    def find_cycles(self, query: CycleQuery) -> list[JournalRow]:
+        """The cycles ``query`` filters (status, error code, job, time window), newest first, one page (below
+        ``query.before``): each filter through an index of its own (``_journal_query``)."""
+        with self._sqlite("find cycles"):
+            return find_cycles(self._db, query)
+
+    def error_codes(self) -> list[str]:
+        """Every error code the journal holds, sorted."""
+        with self._sqlite("list error codes"):
+            return error_codes(self._db)
+
     def integrity_check(self) -> str:
         """SQLite's ``PRAGMA integrity_check``: ``"ok"`` or the damage it found."""
         with self._sqlite("check integrity"):
@@ -306,6 +320,7 @@ class Journal:
                 with self._sqlite("open read-only"):
                     version = db.execute("PRAGMA user_version").fetchone()[0]
                     application_id = db.execute("PRAGMA application_id").fetchone()[0]
+                self.immutable = "immutable" in query
                 break
             except (sqlite3.Error, JournalError) as exc:
                 if db is not None:
@@ -350,6 +365,8 @@ class Journal:
                 with self._sqlite(f"upgrade the schema from version {version}"):
                     db.executescript(f"BEGIN; {_INTENT_SCHEMA} {_INDEX_SCHEMA} PRAGMA user_version = "
                                      f"{SCHEMA_VERSION}; COMMIT;")
+            with self._sqlite("index what readers filter on"):
+                db.executescript(FILTER_INDEX_SCHEMA)
             with self._sqlite("set WAL mode"):
                 mode = db.execute("PRAGMA journal_mode = WAL").fetchone()[0]
                 db.execute("PRAGMA synchronous = FULL")

@@ -67,6 +67,15 @@ CREATE INDEX IF NOT EXISTS cycle_images_kept ON cycle (number)
 """
 _IMAGES_KEPT = "images_pruned_at IS NULL AND images_json <> '[]'"
 
+# what the operator page filters the cycles on (daemon/service/_journal_query.py), each walked from the newest
+# number down; the service creates them at every open (IF NOT EXISTS: once, on a journal written before them)
+FILTER_INDEX_SCHEMA = """
+CREATE INDEX IF NOT EXISTS cycle_status ON cycle (status, number);
+CREATE INDEX IF NOT EXISTS cycle_error_code ON cycle (error_code, number) WHERE error_code IS NOT NULL;
+CREATE INDEX IF NOT EXISTS cycle_job ON cycle (job, number);
+CREATE INDEX IF NOT EXISTS cycle_finished ON cycle (finished_at);
+"""
+
 
 @dataclass(frozen=True)
 class CycleEntry:
