@@ -12,6 +12,7 @@ import numpy as np
 
 from monoguide.solver import frames
 from monoguide.solver.camera import CameraModel
+from monoguide.solver.envelope import DeviationEnvelope
 from monoguide.solver.errors import (
     MissingKey,
     MonoguideError,
@@ -22,7 +23,7 @@ from monoguide.solver.errors import (
     UnknownReference,
     UnsupportedFormat,
 )
-from monoguide.solver.offset import Envelope, PartDisplacement, check_envelope, describe_displacement
+from monoguide.solver.offset import PartDisplacement, check_envelope, describe_displacement
 from monoguide.solver.pose import DEFAULT_FALSE_ALARM_RATE, PoseResult, solve_pose
 from monoguide.solver.problem import PoseProblem
 
@@ -30,13 +31,16 @@ FORMAT = "monoguide.measurement/1"
 
 # Every key the format defines, per object; anything else is refused with the closest known key.
 REQUIRED_KEYS = ("format", "camera", "points_w", "views", "T_s1_w0", "observations")
-OPTIONAL_KEYS = ("id", "sigma_px", "view_sigma", "T_b_s1", "grasp_point_w", "envelope", "truth")
+OPTIONAL_KEYS = ("id", "job", "part", "sigma_px", "view_sigma", "T_b_s1", "grasp_point_w", "envelope", "truth")
+MAX_JOB = 65535  # the PLC's job number (register 1), a uint16
 # The spec's default centre noise, px: the covariance and the consistency test use it when a record has none.
 DEFAULT_SIGMA_PX = 0.1
 VIEW_KEYS = ("T_s1_si",)
 OBSERVATION_KEYS = ("view", "point", "pixel")
 VIEW_SIGMA_KEYS = ("mm", "deg")
-ENVELOPE_KEYS, ENVELOPE_OPTIONAL_KEYS = ("mm", "deg"), ("axis_mm", "axis_deg")
+ENVELOPE_KEYS, ENVELOPE_OPTIONAL_KEYS = ("translation_mm", "rotation_deg"), ("about_w", "total_mm", "total_deg")
+# The envelope's form before it was one definition: totals and per-axis limits, judged at the grasp point.
+OLD_ENVELOPE_KEYS, OLD_ENVELOPE_OPTIONAL_KEYS = ("mm", "deg"), ("axis_mm", "axis_deg")
 TRUTH_KEYS, TRUTH_OPTIONAL_KEYS = ("T_s1_w",), ("base_offset",)
 
 
@@ -52,14 +56,16 @@ class MeasurementRecord:
     id: str | None
     problem: PoseProblem
     grasp_point_w: np.ndarray
-    envelope: Envelope = field(default_factory=Envelope)
+    envelope: DeviationEnvelope = field(default_factory=DeviationEnvelope)
     T_b_s1: np.ndarray | None = None
     truth_T_s1_w: np.ndarray | None = None
     truth_base_offset: np.ndarray | None = None
 
     def displacement(self, T_s1_w: np.ndarray) -> PartDisplacement:
-        """How the part at ``T_s1_w`` lies off the reference, at this record's grasp point."""
-        return describe_displacement(T_s1_w, self.problem.T_s1_w0, self.grasp_point_w, self.T_b_s1)
+        """How the part at ``T_s1_w`` lies off the reference: at this record's grasp point, and about its
+        envelope's point."""
+        about_w = self.envelope.about(self.problem.points_w)
+        return describe_displacement(T_s1_w, self.problem.T_s1_w0, self.grasp_point_w, about_w, self.T_b_s1)
 
 
 def parse_record(data: Any, T_f_c: np.ndarray | None = None) -> MeasurementRecord:
@@ -117,6 +123,11 @@ def _parse_record(data: Any) -> MeasurementRecord:
     record_id = data.get("id")
     if record_id is not None and not isinstance(record_id, str):
         raise RecordError(f"id: expected a string or null, got {record_id!r}")
+    job, part = data.get("job"), data.get("part")
+    if job is not None and (isinstance(job, bool) or not isinstance(job, int) or not 1 <= job <= MAX_JOB):
+        raise RecordError(f"job: expected the PLC's job number, an integer 1 to {MAX_JOB}, got {job!r}"[:200])
+    if part is not None and (not isinstance(part, str) or not part.strip()):
+        raise RecordError(f"part: expected the part type's name, a non-empty string, got {part!r}"[:200])
     camera = CameraModel.from_dict(data["camera"])
     points_w = _matrix(data["points_w"], "points_w", columns=3)
     views = data["views"]
@@ -162,9 +173,8 @@ def _parse_record(data: Any) -> MeasurementRecord:
         truth_T_s1_w = _transform(data["truth"]["T_s1_w"], "truth.T_s1_w")
         if data["truth"].get("base_offset") is not None:
             truth_base_offset = _transform(data["truth"]["base_offset"], "truth.base_offset")
-    return MeasurementRecord(
-        record_id, problem, grasp_point_w, _envelope(data.get("envelope")), T_b_s1, truth_T_s1_w, truth_base_offset
-    )
+    envelope = _envelope(data.get("envelope"), grasp_point_w).at(points_w)
+    return MeasurementRecord(record_id, problem, grasp_point_w, envelope, T_b_s1, truth_T_s1_w, truth_base_offset)
 
 
 def result_to_dict(record: MeasurementRecord, result: PoseResult, time_ms: float) -> dict:
@@ -229,16 +239,49 @@ def _consistency(record: MeasurementRecord, result: PoseResult) -> dict:
     return {**result.consistency.as_dict(), "sigma_px": record.problem.sigma_px}
 
 
-def _envelope(value: Any) -> Envelope:
+def _envelope(value: Any, grasp_point_w: np.ndarray) -> DeviationEnvelope:
+    """The record's ``envelope`` (None: the default). The old form (``mm``, ``deg``, ``axis_mm``, ``axis_deg``)
+    is read as it was judged: about the grasp point, its per-axis limits the totals unless given."""
     if value is None:
-        return Envelope()
+        return DeviationEnvelope()
+    if isinstance(value, dict) and any(key in value for key in OLD_ENVELOPE_KEYS + OLD_ENVELOPE_OPTIONAL_KEYS):
+        mixed = [key for key in ENVELOPE_KEYS + ENVELOPE_OPTIONAL_KEYS if key in value]
+        if mixed:
+            raise RecordError(f"envelope: {', '.join(mixed)} beside the old form's keys (mm, deg, axis_mm, "
+                              "axis_deg): give one form")
+        _check_keys(value, OLD_ENVELOPE_KEYS, OLD_ENVELOPE_OPTIONAL_KEYS, "envelope")
+        total_mm, total_deg = _positive(value["mm"], "envelope.mm"), _positive(value["deg"], "envelope.deg")
+        return DeviationEnvelope(_limits(value, "axis_mm", (total_mm,) * 3),
+                                 _limits(value, "axis_deg", (total_deg,) * 3),
+                                 tuple(float(v) for v in grasp_point_w), total_mm, total_deg)
     _check_keys(value, ENVELOPE_KEYS, ENVELOPE_OPTIONAL_KEYS, "envelope")
-    limits = {"max_mm": _positive(value["mm"], "envelope.mm"), "max_deg": _positive(value["deg"], "envelope.deg")}
-    for key in ENVELOPE_OPTIONAL_KEYS:
-        if value.get(key) is not None:
-            row = _matrix([value[key]], f"envelope.{key}", columns=3)[0]
-            limits[key] = tuple(_positive(float(v), f"envelope.{key}[{i}]") for i, v in enumerate(row))
-    return Envelope(**limits)
+    about_w = None if value.get("about_w") is None else _matrix([value["about_w"]], "envelope.about_w", columns=3)[0]
+    totals = [None if value.get(key) is None else _positive(value[key], f"envelope.{key}")
+              for key in ("total_mm", "total_deg")]
+    return DeviationEnvelope(_limits(value, "translation_mm"), _limits(value, "rotation_deg"),
+                             None if about_w is None else tuple(float(v) for v in about_w), *totals)
+
+
+def envelope_to_record(envelope: DeviationEnvelope) -> dict[str, Any]:
+    """The record's ``envelope`` object for ``envelope``: its per-axis limits, its point (when resolved) and its
+    totals (when set; else the reader takes the norms, as the envelope does)."""
+    out: dict[str, Any] = {"translation_mm": list(envelope.translation_mm), "rotation_deg": list(envelope.rotation_deg)}
+    if envelope.about_w is not None:
+        out["about_w"] = list(envelope.about_w)
+    for key in ("total_mm", "total_deg"):
+        if getattr(envelope, key) is not None:
+            out[key] = float(getattr(envelope, key))
+    return out
+
+
+def _limits(value: dict[str, Any], key: str, default: tuple[float, float, float] | None = None
+            ) -> tuple[float, float, float]:
+    """Three limits > 0 of the envelope's ``key`` (``default`` when absent or null)."""
+    if value.get(key) is None and default is not None:
+        return default
+    row = _matrix([value[key]], f"envelope.{key}", columns=3)[0]
+    x, y, z = (_positive(float(v), f"envelope.{key}[{i}]") for i, v in enumerate(row))
+    return x, y, z
 
 
 def _number(value: Any, where: str) -> float:

@@ -162,7 +162,7 @@ def _layout_report(cfg, cell: CellLayout, planned: LayoutAssessment, current: La
         "envelope": {
             "translation_mm": list(r.envelope.translation_mm),
             "rotation_deg": list(r.envelope.rotation_deg),
-            "centre_w": r.envelope.centre(r.points_w).tolist(),
+            "centre_w": r.envelope.about(r.points_w).tolist(),
             "parts_checked": int(64 + 1 + r.interior_samples),
         },
         "constraints": {

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from monoguide.daemon.config._bounds import bounded_number
 from monoguide.daemon.config._reader import ConfigTable
 from monoguide.drivers.errors import ConfigError
+from monoguide.solver.envelope import DeviationEnvelope
 
 
 @dataclass(frozen=True)
@@ -33,7 +34,7 @@ def read_service(t: ConfigTable) -> ServiceConfig:
 class ChecksConfig:
     """``[checks]``: what a cycle's result must pass before its offset goes to the robot (docs/cycle.md).
     ``None`` envelope keys: from ``[layout]`` (its per-axis envelope, the totals their norms), else the
-    measurement record's default envelope (50 mm, 5 deg)."""
+    default envelope (+-50 mm, +-5 deg per axis, the totals their norms): :meth:`envelope`."""
 
     max_rms_px: float = 1.0  # reprojection RMS above this: RESIDUAL_TOO_LARGE
     max_sigma_mm: float = 0.5  # predicted sigma of the grasp point above this: UNCERTAINTY_TOO_LARGE
@@ -43,6 +44,16 @@ class ChecksConfig:
     envelope_deg: float | None = None  # the rotation angle, deg
     envelope_axis_mm: tuple[float, float, float] | None = None  # per axis of the reference part frame
     envelope_axis_deg: tuple[float, float, float] | None = None
+
+    def envelope(self, planned: DeviationEnvelope | None) -> DeviationEnvelope:
+        """The part's one envelope, which the offset check holds it to: ``planned`` (its ``[layout]`` envelope:
+        per axis and its point; None: +-50 mm / +-5 deg about the holes' centroid) with the per-axis limits and
+        the totals these keys set (totals not set: the norms of the per-axis limits)."""
+        base = planned if planned is not None else DeviationEnvelope()
+        return DeviationEnvelope(self.envelope_axis_mm or base.translation_mm,
+                                 self.envelope_axis_deg or base.rotation_deg, base.about_w,
+                                 self.envelope_mm if self.envelope_mm is not None else base.total_mm,
+                                 self.envelope_deg if self.envelope_deg is not None else base.total_deg)
 
 
 def read_checks(t: ConfigTable) -> ChecksConfig:

@@ -1,10 +1,11 @@
-"""The deviation envelope of the part, and what a camera sees of a hole over all of it.
+"""What a camera sees of a hole over the whole deviation envelope.
 
-A part lies off its reference by a rotation vector ``r`` (each component within +- ``rotation_deg``)
-about a centre ``centre_w`` and a shift ``t`` (each component within +- ``translation_mm``), both in the
-reference part's frame: ``T_w0_w = [R(r) | c - R(r) c + t]`` (the simulated cell draws its parts the same
-way). A layout must hold every such part, so it is checked at the 64 corners of that box, its centre and
-a seeded sample of its interior, never at the reference part alone.
+The envelope is :class:`~monoguide.solver.envelope.DeviationEnvelope` (one definition for the planner, the
+simulated part supply and the offset check): a rotation vector ``r`` about the part's point ``about_w`` and
+the shift ``t`` of that point, per axis of the reference part frame, ``T_w0_w = [R(r) | a - R(r) a + t]``.
+A layout must hold every such part, so it is checked at the 64 corners of the per-axis box (a superset of
+the envelope when its totals cut the corners off), its centre and a seeded sample of its interior, never at
+the reference part alone.
 """
 
 from __future__ import annotations
@@ -17,40 +18,9 @@ import numpy as np
 
 from monoguide.solver import frames
 from monoguide.solver.camera import CameraModel
+from monoguide.solver.envelope import DeviationEnvelope, deviation_transform
 
 N_CORNERS = 64
-
-
-@dataclass(frozen=True)
-class DeviationEnvelope:
-    """How far a part may lie off the reference: +- per axis of the part frame.
-
-    translation_mm : (3,) mm; rotation_deg : (3,) deg, components of the rotation vector about ``centre_w``
-    (3,) mm in the part frame (None: the featured holes' centroid).
-    """
-
-    translation_mm: tuple[float, float, float] = (50.0, 50.0, 50.0)
-    rotation_deg: tuple[float, float, float] = (5.0, 5.0, 5.0)
-    centre_w: tuple[float, float, float] | None = None
-
-    def centre(self, points_w: np.ndarray) -> np.ndarray:
-        """The rotation centre (3,): ``centre_w``, or the centroid of ``points_w`` (n, 3)."""
-        if self.centre_w is not None:
-            return np.asarray(self.centre_w, dtype=float)
-        return np.asarray(points_w, dtype=float).reshape(-1, 3).mean(axis=0)
-
-    def describe(self) -> str:
-        t = "/".join(f"{v:g}" for v in self.translation_mm)
-        r = "/".join(f"{v:g}" for v in self.rotation_deg)
-        return f"±{t} mm, ±{r}°"
-
-
-def deviation_transform(rotvec_rad: np.ndarray, translation_mm: np.ndarray, centre_w: np.ndarray) -> np.ndarray:
-    """``T_w0_w`` (4, 4) of a part turned by ``rotvec_rad`` about ``centre_w`` and shifted by
-    ``translation_mm`` (all in the reference part's frame)."""
-    R = frames.rotvec_to_matrix(np.asarray(rotvec_rad, dtype=float))
-    c = np.asarray(centre_w, dtype=float)
-    return frames.make_T(R, c - R @ c + np.asarray(translation_mm, dtype=float))
 
 
 def envelope_deviations(
@@ -63,8 +33,8 @@ def envelope_deviations(
     rng = np.random.default_rng(seed)
     inside = rng.uniform(-1.0, 1.0, size=(interior, 6)) * limits
     draws = np.vstack([corners, np.zeros((1, 6)), inside])
-    centre = envelope.centre(points_w)
-    return np.stack([deviation_transform(d[:3], d[3:], centre) for d in draws])
+    about = envelope.about(points_w)
+    return np.stack([deviation_transform(d[:3], d[3:], about) for d in draws])
 
 
 @dataclass(frozen=True)

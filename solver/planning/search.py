@@ -17,7 +17,7 @@ import numpy as np
 
 from monoguide.solver import frames
 from monoguide.solver.camera import CameraModel
-from monoguide.solver.planning.envelope import DeviationEnvelope
+from monoguide.solver.envelope import DeviationEnvelope, deviation_transform
 
 SEARCH_MARGIN_PX = 24.0  # beyond the envelope's spread and the hole's own size
 
@@ -34,14 +34,13 @@ class HoleSearch:
 
 def search_extremes(envelope: DeviationEnvelope, points_w: np.ndarray) -> np.ndarray:
     """``T_w0_w`` (216, 4, 4) of the envelope's extremes: every corner of the translation box (8) with every
-    rotation vector of -1, 0, +1 times the rotation limits (27), about the envelope's centre."""
-    c = envelope.centre(points_w)
+    rotation vector of -1, 0, +1 times the rotation limits (27), about the envelope's point (``about_w``)."""
+    c = envelope.about(points_w)
     t_lim, r_lim = np.asarray(envelope.translation_mm, float), np.radians(np.asarray(envelope.rotation_deg, float))
     out = []
     for t_sign in itertools.product((-1.0, 1.0), repeat=3):
         for r_sign in itertools.product((-1.0, 0.0, 1.0), repeat=3):
-            R = frames.rotvec_to_matrix(np.asarray(r_sign) * r_lim)
-            out.append(frames.make_T(R, c - R @ c + np.asarray(t_sign) * t_lim))
+            out.append(deviation_transform(np.asarray(r_sign) * r_lim, np.asarray(t_sign) * t_lim, c))
     return np.array(out)
 
 

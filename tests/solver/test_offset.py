@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from monoguide.solver import frames
+from monoguide.solver.envelope import DeviationEnvelope
 from monoguide.solver.errors import OffsetOutOfEnvelope
 from monoguide.solver.offset import (
-    Envelope,
     base_offset,
     check_envelope,
     describe_displacement,
@@ -74,60 +74,74 @@ def _turned(deg_xyz, shift_w=(0.0, 0.0, 0.0), about_w=CENTROID_W):
     return CELL.T_s1_w0 @ move
 
 
+def _about_centroid(T_s1_w, grasp_w=CENTROID_W):
+    """The displacement of ``T_s1_w`` judged at ``grasp_w``, described about the holes' centroid."""
+    return describe_displacement(T_s1_w, CELL.T_s1_w0, grasp_w, CENTROID_W)
+
+
 def test_a_roof_turned_3_deg_in_place_passes_though_its_corners_move_60_mm():
-    d = describe_displacement(_turned([0.0, 0.0, 3.0]), CELL.T_s1_w0, CENTROID_W)
+    d = _about_centroid(_turned([0.0, 0.0, 3.0]))
     corner_shift = 2 * math.sin(math.radians(1.5)) * np.linalg.norm(CELL.points_w[0] - CENTROID_W)
     assert corner_shift > 60.0
-    check_envelope(d, Envelope())
+    check_envelope(d, DeviationEnvelope())
     assert d.rotation_deg == pytest.approx(3.0) and d.grasp_shift_mm == pytest.approx(0.0, abs=1e-9)
     np.testing.assert_allclose(d.rotation_w0_deg, [0.0, 0.0, 3.0], atol=1e-9)
 
 
 def test_six_degrees_are_refused_naming_the_axis():
-    d = describe_displacement(_turned([0.0, 0.0, 6.0]), CELL.T_s1_w0, CENTROID_W)
+    d = _about_centroid(_turned([0.0, 0.0, 6.0]))
     with pytest.raises(OffsetOutOfEnvelope, match=r"turned \+6\.000 deg about z .* ±5 deg"):
-        check_envelope(d, Envelope())
+        check_envelope(d, DeviationEnvelope())
 
 
 @pytest.mark.parametrize(("axis", "index"), [("x", 0), ("y", 1), ("z", 2)])
 def test_sixty_mm_along_one_axis_is_refused_naming_the_axis(axis, index):
     shift = np.zeros(3)
     shift[index] = -60.0
-    d = describe_displacement(_turned([0.5, -0.5, 1.0], shift), CELL.T_s1_w0, CENTROID_W)
-    np.testing.assert_allclose(d.grasp_shift_w0, shift, atol=1e-9)  # the grasp point is the turning centre
+    d = _about_centroid(_turned([0.5, -0.5, 1.0], shift))
+    np.testing.assert_allclose(d.about_shift_w0, shift, atol=1e-9)  # the centroid is the turning centre
     with pytest.raises(OffsetOutOfEnvelope, match=rf"-60\.00 mm off along {axis} of the reference part .*±50 mm"):
-        check_envelope(d, Envelope())
+        check_envelope(d, DeviationEnvelope())
 
 
-def test_per_axis_limits_and_the_total():
-    d = describe_displacement(_turned([0.0, 0.0, 0.0], [0.0, 0.0, 8.0]), CELL.T_s1_w0, CENTROID_W)
-    check_envelope(d, Envelope())
+def test_per_axis_limits_and_the_totals():
+    d = _about_centroid(_turned([0.0, 0.0, 0.0], [0.0, 0.0, 8.0]))
+    check_envelope(d, DeviationEnvelope())
     with pytest.raises(OffsetOutOfEnvelope, match=r"\+8\.00 mm off along z.*±5 mm"):
-        check_envelope(d, Envelope(axis_mm=(50.0, 50.0, 5.0)))
-    diagonal = describe_displacement(_turned([0.0, 0.0, 0.0], [40.0, 40.0, 0.0]), CELL.T_s1_w0, CENTROID_W)
-    with pytest.raises(OffsetOutOfEnvelope, match=r"56\.57 mm off at the grasp point"):
-        check_envelope(diagonal, Envelope())  # inside per axis, outside in total
-    tilted = describe_displacement(_turned([4.0, 0.0, 3.5]), CELL.T_s1_w0, CENTROID_W)
-    with pytest.raises(OffsetOutOfEnvelope, match=r"turned 5\.3\d\d deg"):
-        check_envelope(tilted, Envelope())
+        check_envelope(d, DeviationEnvelope(translation_mm=(50.0, 50.0, 5.0)))
+    diagonal = _about_centroid(_turned([0.0, 0.0, 0.0], [40.0, 40.0, 0.0]))
+    check_envelope(diagonal, DeviationEnvelope())  # the default total is the per-axis norm, 86.6 mm
+    with pytest.raises(OffsetOutOfEnvelope, match=r"56\.57 mm off in total"):
+        check_envelope(diagonal, DeviationEnvelope(total_mm=50.0))  # inside per axis, outside in total
+    tilted = _about_centroid(_turned([4.0, 0.0, 3.5]))
+    with pytest.raises(OffsetOutOfEnvelope, match=r"turned 5\.3\d\d deg in total"):
+        check_envelope(tilted, DeviationEnvelope(total_deg=5.0))
 
 
-def test_the_grasp_point_decides_the_shift():
-    """The same 3 deg turn about the centre, judged at a corner hole, moves the grasp point 60 mm."""
-    d = describe_displacement(_turned([0.0, 0.0, 3.0]), CELL.T_s1_w0, CELL.points_w[0])
+def test_the_envelope_is_about_its_point_and_the_grasp_point_only_reports():
+    """The same 3 deg turn about the centroid, gripped at a corner hole: the grasp point moves 60 mm, the
+    envelope's point (the centroid) not at all, and the part passes. About the corner hole it is refused."""
+    turned = _turned([0.0, 0.0, 3.0])
+    d = _about_centroid(turned, grasp_w=CELL.points_w[0])
     assert d.grasp_shift_mm > 60.0
-    with pytest.raises(OffsetOutOfEnvelope, match="mm off"):
-        check_envelope(d, Envelope())
+    check_envelope(d, DeviationEnvelope())
+    corner = tuple(CELL.points_w[0])
+    about_corner = describe_displacement(turned, CELL.T_s1_w0, CENTROID_W, CELL.points_w[0])
+    with pytest.raises(OffsetOutOfEnvelope, match=r"mm off along [xy] of the reference part frame at \(0\.00, 0\.00"):
+        check_envelope(about_corner, DeviationEnvelope(about_w=corner))
+    with pytest.raises(ValueError, match="described about"):  # a displacement about another point: a bug
+        check_envelope(d, DeviationEnvelope(about_w=corner))
 
 
 def test_nan_displacement_is_refused():
     bad = CELL.T_s1_w0.copy()
     bad[0, 3] = np.nan
     with pytest.raises(OffsetOutOfEnvelope, match="not finite"):
-        check_envelope(describe_displacement(bad, CELL.T_s1_w0, CENTROID_W), Envelope())
+        check_envelope(_about_centroid(bad), DeviationEnvelope())
 
 
-def test_envelope_limits_must_be_positive():
-    for kwargs in ({"max_mm": 0.0}, {"max_deg": float("nan")}, {"axis_mm": (1.0, 2.0)}):
-        with pytest.raises(ValueError):
-            Envelope(**kwargs)
+@pytest.mark.parametrize("kwargs", [{"total_mm": 0.0}, {"total_deg": float("nan")}, {"translation_mm": (1.0, 2.0)},
+                                    {"rotation_deg": (1.0, -1.0, 1.0)}, {"about_w": (0.0, float("inf"), 0.0)}])
+def test_envelope_limits_must_be_finite_and_not_negative(kwargs):
+    with pytest.raises(ValueError, match="envelope"):
+        DeviationEnvelope(**kwargs)

@@ -9,10 +9,12 @@ import numpy as np
 import pytest
 
 from monoguide.solver import frames
+from monoguide.solver.envelope import DeviationEnvelope
 from monoguide.solver.errors import (
     MissingKey,
     NonFiniteValue,
     NotARotation,
+    OffsetOutOfEnvelope,
     PointBehindCamera,
     RecordError,
     TooFewObservations,
@@ -20,9 +22,8 @@ from monoguide.solver.errors import (
     UnknownReference,
     UnsupportedFormat,
 )
-from monoguide.solver.offset import Envelope
 from monoguide.solver.pose import solve_pose
-from monoguide.solver.record import parse_record, result_to_dict
+from monoguide.solver.record import envelope_to_record, parse_record, result_to_dict, solve_record
 
 EXAMPLE = json.loads((Path(__file__).parents[2] / "examples" / "example-record.json").read_text())
 RESULT_FIELDS = {
@@ -79,8 +80,13 @@ def test_a_record_without_T_b_s1_has_no_base_offset_and_the_centroid_as_grasp_po
     for key in ("T_b_s1", "grasp_point_w", "envelope"):
         del data[key]
     record = parse_record(data)
-    assert record.T_b_s1 is None and record.envelope == Envelope()
-    np.testing.assert_allclose(record.grasp_point_w, np.mean(EXAMPLE["points_w"], axis=0))
+    centroid = np.mean(EXAMPLE["points_w"], axis=0)
+    assert record.T_b_s1 is None
+    np.testing.assert_allclose(record.grasp_point_w, centroid)
+    # the default envelope: +-50 mm / +-5 deg per axis about the holes' centroid, totals the norms
+    assert record.envelope.translation_mm == (50.0,) * 3 and record.envelope.rotation_deg == (5.0,) * 3
+    np.testing.assert_allclose(record.envelope.about_w, centroid)
+    assert record.envelope.limit_mm == pytest.approx(50.0 * 3**0.5)
     out = result_to_dict(record, solve_pose(record.problem), 1.0)
     assert out["base_offset"] is None and out["base_offset_xyzabc"] is None
     assert "offset" not in out
@@ -120,10 +126,48 @@ def test_sigma_px_is_optional_and_defaults_to_a_tenth_of_a_pixel(how):
     np.testing.assert_allclose(np.array(default["covariance"]), np.array(stated["covariance"]), rtol=1e-9)
 
 
-def test_envelope_of_the_record():
+def test_an_old_records_envelope_is_read_as_it_was_judged_at_the_grasp_point():
+    """The old form: totals ``mm`` / ``deg``, per-axis limits ``axis_mm`` / ``axis_deg`` (default: the totals),
+    the shift judged at the grasp point."""
     data = copy.deepcopy(EXAMPLE)
+    data["grasp_point_w"] = [100.0, 200.0, 0.0]
     data["envelope"] = {"mm": 40.0, "deg": 3.0, "axis_mm": [40.0, 40.0, 5.0]}
-    assert parse_record(data).envelope == Envelope(40.0, 3.0, (40.0, 40.0, 5.0))
+    assert parse_record(data).envelope == DeviationEnvelope((40.0, 40.0, 5.0), (3.0, 3.0, 3.0), (100.0, 200.0, 0.0),
+                                                            40.0, 3.0)
+
+
+def test_the_records_envelope_round_trips_with_its_point_and_totals():
+    data = copy.deepcopy(EXAMPLE)
+    for envelope in (DeviationEnvelope((40.0, 30.0, 20.0), (3.0, 2.0, 4.0), (750.0, 500.0, 10.0), 45.0, 4.5),
+                     DeviationEnvelope((50.0, 50.0, 5.0), (0.5, 0.5, 2.0), (1.0, 2.0, 3.0))):
+        data["envelope"] = json.loads(json.dumps(envelope_to_record(envelope)))
+        assert parse_record(data).envelope == envelope
+    data["envelope"] = {"translation_mm": [10.0, 10.0, 10.0], "rotation_deg": [1.0, 1.0, 1.0]}
+    parsed = parse_record(data).envelope  # no about_w: the holes' centroid; no totals: the norms
+    np.testing.assert_allclose(parsed.about_w, np.mean(EXAMPLE["points_w"], axis=0))
+    assert (parsed.limit_mm, parsed.limit_deg) == pytest.approx((10.0 * 3**0.5, 3**0.5))
+
+
+def test_solve_judges_the_record_about_its_envelopes_point():
+    """The example part's true shift, computed here from its truth (``T_w0_w a - a``), at the centroid and at a
+    point 3 m off it: with a per-axis limit between the two, solve passes the part about the centroid and
+    refuses it about the far point."""
+    data = copy.deepcopy(EXAMPLE)
+    T_w0_w = np.linalg.inv(np.array(EXAMPLE["T_s1_w0"])) @ np.array(EXAMPLE["truth"]["T_s1_w"])
+    centroid = np.mean(EXAMPLE["points_w"], axis=0)
+    far = centroid + np.array([0.0, 3000.0, 0.0])
+    shift_centroid, shift_far = (np.abs(T_w0_w[:3, :3] @ a + T_w0_w[:3, 3] - a).max() for a in (centroid, far))
+    assert shift_far > shift_centroid + 20.0  # the seeded part turns enough for the two points to differ
+    limit = (shift_centroid + shift_far) / 2.0
+    data["envelope"] = {"translation_mm": [limit] * 3, "rotation_deg": [5.0, 5.0, 5.0]}
+    record = parse_record(data)
+    moved = record.displacement(record.truth_T_s1_w).about_shift_w0
+    np.testing.assert_allclose(moved, T_w0_w[:3, :3] @ centroid + T_w0_w[:3, 3] - centroid, atol=1e-3)
+    assert solve_record(data)[0]["status"] == "ok"
+    data["envelope"]["about_w"] = far.tolist()
+    out = solve_record(data)[0]
+    assert out["status"] == "error" and out["error"]["code"] == OffsetOutOfEnvelope.code
+    assert "at (" + ", ".join(f"{v:.2f}" for v in far) + ") mm" in out["error"]["message"]
 
 
 def _broken(path, value):
@@ -164,6 +208,14 @@ _DELETE = object()
         (("grasp_point_w",), [1.0, 2.0], RecordError, "grasp_point_w"),
         (("envelope", "mm"), 0.0, RecordError, r"envelope\.mm"),
         (("envelope", "deg"), _DELETE, MissingKey, r"envelope\.deg: missing"),
+        (("envelope", "translation_mm"), [1.0, 1.0, 1.0], RecordError, r"translation_mm beside the old form"),
+        (("envelope",), {"translation_mm": [1.0, 1.0, 1.0]}, MissingKey, r"envelope\.rotation_deg: missing"),
+        (("envelope",), {"translation_mm": [1.0, 0.0, 1.0], "rotation_deg": [1.0, 1.0, 1.0]}, RecordError,
+         r"envelope\.translation_mm\[1\]: must be positive"),
+        (("envelope",), {"translation_mm": [1.0, 1.0, 1.0], "rotation_deg": [1.0, 1.0, 1.0], "total_mm": -1.0},
+         RecordError, r"envelope\.total_mm: must be positive"),
+        (("envelope",), {"translation_mm": [1.0, 1.0, 1.0], "rotation_deg": [1.0, 1.0, 1.0], "about_w": [1.0]},
+         RecordError, r"envelope\.about_w"),
         (("truth", "T_s1_w"), _DELETE, MissingKey, r"truth\.T_s1_w: missing"),
         (("observations",), [], TooFewObservations, "0 observation"),
         (("observations", 0, "pixel"), [5000.0, 100.0], RecordError, "outside"),
@@ -187,6 +239,7 @@ def test_bad_record_gets_its_code(path, value, error, fragment):
         (("views", 1), "T_s1_s", r"views\[1\]: unknown key 'T_s1_s'; did you mean T_s1_si\?"),
         (("observations", 2), "pixels", r"observations\[2\]: unknown key 'pixels'; did you mean pixel\?"),
         (("envelope",), "axis_m", r"envelope: unknown key 'axis_m'; did you mean axis_mm\?"),
+        (("envelope",), "about", r"envelope: unknown key 'about'"),
         (("truth",), "T_s1_ww", r"truth: unknown key 'T_s1_ww'; did you mean T_s1_w\?"),
     ],
 )
