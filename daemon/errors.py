@@ -6,7 +6,8 @@ and the commands'. docs/plc-interface.md's table of codes is generated from all 
 (``tests/drivers/test_plc_interface_doc.py --write``).
 
 ``plc_code`` ranges: 530-539 the cell config, 600-609 the cycle, 610-619 the service, 620-629 the journal,
-640-649 the state directory and the readers, 650-659 ``simulate``, 660 ``init``, 700-729 the calibration wizard.
+640-649 the state directory and the readers, 650-659 ``simulate``, 660 ``init``, 670-679 the operator page
+(``monoguide web``), 680-689 ``monoguide plant`` (OPC UA and metrics), 700-729 the calibration wizard.
 """
 
 from __future__ import annotations
@@ -308,3 +309,19 @@ class WebServerFailed(MonoguideError):
 
     code = "WEB_SERVER_FAILED"
     plc_code = 673
+
+
+class PlantCertificateError(MonoguideError):
+    """``monoguide plant``: the OPC UA server's certificate or key cannot be made or read, or the key is readable by
+    others, or a file of the trust list is no certificate."""
+
+    code = "PLANT_CERTIFICATE"
+    plc_code = 680
+
+
+class PlantListenFailed(MonoguideError):
+    """``monoguide plant``: the OPC UA or the metrics port cannot be listened on (in use, or an address this PC
+    does not have)."""
+
+    code = "PLANT_LISTEN_FAILED"
+    plc_code = 681

@@ -29,6 +29,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "calibrate": ("monoguide.daemon.cli.calibrate", "calibrate", "The calibration wizard of the cell."),
     "init": ("monoguide.daemon.cli.init", "init", "Write a starting cell config and the robot programs."),
     "journal": ("monoguide.daemon.cli.journal", "app", "Past cycles from the journal: list, show, resolve, export."),
+    "plant": ("monoguide.daemon.cli.plant", "plant", "The cell to the plant: OPC UA (Machine Vision) and Prometheus."),
     "web": ("monoguide.daemon.cli.web", "web", "The operator page: the cell in a browser, read-only."),
 }
 

@@ -260,6 +260,12 @@ class Journal:
         with self._sqlite("list error codes"):
             return error_codes(self._db)
 
+    def outcome_counts(self) -> dict[tuple[str, str | None], int]:
+        """The number of cycles by (status, error code): a scan of the table, for a reader's start (`plant`)."""
+        with self._sqlite("count cycles by outcome"):
+            rows = self._db.execute("SELECT status, error_code, count(*) FROM cycle GROUP BY status, error_code")
+            return {(status, code): int(n) for status, code, n in rows.fetchall()}
+
     def integrity_check(self) -> str:
         """SQLite's ``PRAGMA integrity_check``: ``"ok"`` or the damage it found."""
         with self._sqlite("check integrity"):

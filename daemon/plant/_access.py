@@ -1,0 +1,115 @@
+"""Who may open a session on the OPC UA server, and what a session may do: read, browse and subscribe, nothing else.
+
+- **The channel**: Sign & Encrypt only (Basic256Sha256, Aes256Sha256RsaPss); the ``None`` policy is never offered.
+- **The client application**: its certificate must be in the trust list — the DER or PEM files of
+  ``[plant] trusted_certificates`` (``<pki dir>/trusted``), pinned by their SHA-256 thumbprint, valid today. It is
+  checked when the session is created and again, as the channel's certificate, when it is activated (a client
+  cannot skip the first check by leaving the session's certificate empty). The folder is read again at every
+  session, so a certificate dropped in or removed counts from the next login on.
+- **The identity**: a user of ``[[plant.users]]`` with the password its PBKDF2 hash was made from, or an X.509
+  identity token whose certificate is in the trust list; anonymous only where ``[plant] anonymous = true`` (a
+  loopback address only, `_settings`).
+- **What it may do** (:class:`ReadOnlyRules`): the services of reading, browsing and subscribing. Write, Call,
+  HistoryUpdate and the node-management services are refused with ``BadUserAccessDenied`` whatever the node, and
+  no variable is writable (``AccessLevel`` CurrentRead).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+from pathlib import Path
+from typing import Any
+
+from asyncua import ua
+from asyncua.common.utils import ServiceError
+from asyncua.crypto.permission_rules import PermissionRuleset, User, UserRole
+from cryptography import x509
+
+from monoguide.daemon.plant._passwords import verify_password
+from monoguide.daemon.plant._pki import not_valid_now
+from monoguide.daemon.plant._settings import PlantUser
+
+log = logging.getLogger(__name__)
+
+# the requests a session may make: reading, browsing, subscribing (OPC 10000-4 service sets), never writing
+ALLOWED_REQUESTS = frozenset(ua.NodeId(getattr(ua.ObjectIds, f"{name}Request_Encoding_DefaultBinary")) for name in (
+    "CreateSession", "CloseSession", "ActivateSession", "Read", "Browse", "BrowseNext", "GetEndpoints", "FindServers",
+    "TranslateBrowsePathsToNodeIds", "RegisterNodes", "UnregisterNodes", "HistoryRead", "CreateSubscription",
+    "ModifySubscription", "DeleteSubscriptions", "TransferSubscriptions", "SetPublishingMode", "Publish",
+    "Republish", "CreateMonitoredItems", "ModifyMonitoredItems", "DeleteMonitoredItems", "SetMonitoringMode",
+    "CloseSecureChannel",
+))
+
+
+class TrustList:
+    """The client certificates the server trusts: every ``*.der``, ``*.pem``, ``*.crt`` file of one folder."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+
+    def subject(self, der: bytes) -> str | None:
+        """The common name of the trusted, currently valid certificate ``der``; None when it is not trusted."""
+        pinned = self._load()
+        cert = pinned.get(hashlib.sha256(der).hexdigest())
+        if cert is None or not_valid_now(cert):
+            return None
+        names = cert.subject.get_attributes_for_oid(x509.NameOID.COMMON_NAME)
+        return str(names[0].value) if names else "certificate"
+
+    async def validate(self, cert: x509.Certificate, _description: ua.ApplicationDescription) -> None:
+        """asyncua's certificate validator (at CreateSession): ``BadCertificateUntrusted`` unless trusted."""
+        from cryptography.hazmat.primitives.serialization import Encoding
+
+        if self.subject(cert.public_bytes(Encoding.DER)) is None:
+            log.warning("OPC UA: session refused: client certificate %r is not in the trust list %s",
+                        cert.subject.rfc4514_string(), self.folder)
+            raise ServiceError(ua.StatusCodes.BadCertificateUntrusted)
+
+    def _load(self) -> dict[str, x509.Certificate]:
+        found: dict[str, x509.Certificate] = {}
+        if not self.folder.is_dir():
+            return found
+        for path in sorted(self.folder.iterdir()):
+            if path.suffix.lower() not in (".der", ".pem", ".crt"):
+                continue
+            try:
+                data = path.read_bytes()
+                cert = (x509.load_pem_x509_certificate(data) if data.lstrip().startswith(b"-----")
+                        else x509.load_der_x509_certificate(data))
+            except (OSError, ValueError) as exc:
+                log.warning("OPC UA trust list: %s skipped: not a certificate (%s)", path, exc)
+                continue
+            from cryptography.hazmat.primitives.serialization import Encoding
+
+            found[hashlib.sha256(cert.public_bytes(Encoding.DER)).hexdigest()] = cert
+        return found
+
+
+class PlantUsers:
+    """asyncua's user manager: a session's identity checked against ``[[plant.users]]`` and the trust list."""
+
+    def __init__(self, users: tuple[PlantUser, ...], trust: TrustList) -> None:
+        self.users = {user.name: user for user in users}
+        self.trust = trust
+
+    def get_user(self, iserver: Any, username: str | None = None, password: str | None = None,
+                 certificate: Any = None) -> User | None:
+        """``certificate``: the channel's (user name and anonymous tokens) or the X.509 token's certificate."""
+        if certificate is None or self.trust.subject(bytes(certificate)) is None:
+            log.warning("OPC UA: session refused: its certificate is not in the trust list %s", self.trust.folder)
+            return None
+        if username is None:  # an X.509 identity (trusted above), or anonymous where the settings allow it
+            return User(role=UserRole.User, name=self.trust.subject(bytes(certificate)))
+        user = self.users.get(username)
+        if user is None or password is None or not verify_password(password, user.password_hash):
+            log.warning("OPC UA: session refused: user %r and that password are not in [plant] users", username)
+            return None
+        return User(role=UserRole.User, name=username)
+
+
+class ReadOnlyRules(PermissionRuleset):
+    """Every session may read, browse and subscribe; no request that writes or calls is let through."""
+
+    def check_validity(self, user: User, action_type_id: ua.NodeId, body: Any) -> bool:
+        return action_type_id in ALLOWED_REQUESTS

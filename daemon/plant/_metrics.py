@@ -1,0 +1,120 @@
+"""The Prometheus metrics of ``monoguide plant`` (docs/metrics.md), served with prometheus_client on their own port
+(``[plant] metrics_host``, loopback unless configured otherwise) from a registry of their own.
+
+The cycle counters start from the journal's totals when the plant starts (one count by outcome) and count on with
+every cycle it reads, so that they equal the journal's; the histograms observe the cycles finished while it runs.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, ProcessCollector, start_http_server
+
+from monoguide.daemon.errors import PlantListenFailed
+from monoguide.daemon.plant._cell_view import CellReading
+from monoguide.daemon.plant._results import OFFSET_AXES, CycleResult
+from monoguide.daemon.service import STATUS_FILE
+
+CYCLE_BUCKETS_S = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 7.5, 10.0, 15.0, 30.0, 60.0)
+OVERHEAD_BUCKETS_S = (0.01, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3, 0.5, 1.0, 2.0, 5.0)
+NO_ERROR = "none"  # the error_code label of a good cycle
+STATES = ("not running", "starting", "idle", "measuring", "solving", "checking", "writing", "reporting",
+          "awaiting_ack", "fault", "stopped")
+
+
+class PlantMetrics:
+    def __init__(self, calibration_date: float | None) -> None:
+        self.registry = r = CollectorRegistry(auto_describe=True)
+        ProcessCollector(registry=r)  # process_resident_memory_bytes & co. of the plant itself
+        self.cycles = Counter("monoguide_cycles", "Finished cycles by status and error code (the journal's rows).",
+                              ["status", "error_code"], registry=r)
+        self.cycle_time = Histogram("monoguide_cycle_seconds", "Trigger to DONE of each cycle.",
+                                    buckets=CYCLE_BUCKETS_S, registry=r)
+        self.overhead = Histogram("monoguide_cycle_overhead_seconds",
+                                  "The last frame in hand to the offset acknowledged by the robot (good cycles).",
+                                  buckets=OVERHEAD_BUCKETS_S, registry=r)
+        self.offset = Gauge("monoguide_base_offset", "The last good cycle's base offset: x y z mm, a b c deg.",
+                            ["axis"], registry=r)
+        self.rms = Gauge("monoguide_reprojection_rms_pixels", "The last solved cycle's reprojection RMS, px.",
+                         registry=r)
+        self.sigma_mm = Gauge("monoguide_sigma_position_millimetres",
+                              "The last solved cycle's predicted sigma at the grasp point, mm.", registry=r)
+        self.sigma_deg = Gauge("monoguide_sigma_rotation_degrees",
+                               "The last solved cycle's predicted sigma of the rotation, deg.", registry=r)
+        self.last_cycle = Gauge("monoguide_last_cycle", "The number of the last finished cycle.", registry=r)
+        self.last_cycle_time = Gauge("monoguide_last_cycle_timestamp_seconds",
+                                     "When the last cycle was committed (Unix s).", registry=r)
+        self.running = Gauge("monoguide_service_running", f"1 while the service runs ({STATUS_FILE} fresh).",
+                             registry=r)
+        self.state = Gauge("monoguide_service_state", "1 for the service's current state, 0 for the others.",
+                           ["state"], registry=r)
+        self.devices = Gauge("monoguide_device_connected", "1 while the service holds the device's connection.",
+                             ["device"], registry=r)
+        self.journal_bytes = Gauge("monoguide_journal_bytes", "The journal's size on disk (with its WAL).",
+                                   registry=r)
+        self.journal_cycles = Gauge("monoguide_journal_cycle_counter", "The journal's cycle counter.", registry=r)
+        self.calibration_age = Gauge("monoguide_calibration_age_seconds",
+                                     "Since [calibration] date of the cell config (NaN: no date).", registry=r)
+        self.health = Gauge("monoguide_calibration_health_level",
+                            "The calibration health level (NaN: not measured by this release).", registry=r)
+        self.calibration_date = calibration_date
+        for axis in OFFSET_AXES:
+            self.offset.labels(axis=axis).set(math.nan)
+        for gauge in (self.rms, self.sigma_mm, self.sigma_deg, self.health):
+            gauge.set(math.nan)
+        self._server: Any = None
+
+    def start(self, host: str, port: int) -> str:
+        try:
+            self._server, _ = start_http_server(port, host, registry=self.registry)
+        except OSError as exc:
+            raise PlantListenFailed(f"metrics http://{host}:{port}/metrics: cannot listen: {exc}") from exc
+        return f"http://{f'[{host}]' if ':' in host else host}:{port}/metrics"
+
+    def stop(self) -> None:
+        if self._server is not None:
+            self._server.shutdown()
+            self._server.server_close()
+            self._server = None
+
+    def seed(self, counts: dict[tuple[str, str | None], int], newest_first: list[CycleResult]) -> None:
+        """The journal's totals at start, and the gauges of its newest cycles."""
+        for (status, code), n in counts.items():
+            self.cycles.labels(status=status, error_code=code or NO_ERROR).inc(n)
+        for result in reversed(newest_first):
+            self._gauges(result)
+
+    def show(self, reading: CellReading) -> None:
+        for result in reading.results:
+            self.cycles.labels(status=result.status, error_code=result.error_code or NO_ERROR).inc()
+            if result.cycle_s is not None:
+                self.cycle_time.observe(result.cycle_s)
+            if result.ok and result.overhead_s is not None:
+                self.overhead.observe(result.overhead_s)
+            self._gauges(result)
+        status = reading.status
+        self.running.set(1 if reading.running else 0)
+        current = status.state if status and reading.running else "not running"
+        for state in STATES:
+            self.state.labels(state=state).set(1 if state == current else 0)
+        for name, device in (status.devices if status else {}).items():
+            self.devices.labels(device=name).set(1 if device.connected and reading.running else 0)
+        self.journal_bytes.set(reading.journal_bytes)
+        if reading.counter is not None:
+            self.journal_cycles.set(reading.counter)
+        date = self.calibration_date
+        self.calibration_age.set(math.nan if date is None else time.time() - date)
+
+    def _gauges(self, result: CycleResult) -> None:
+        self.last_cycle.set(result.cycle)
+        self.last_cycle_time.set(result.committed_at)
+        if result.base_offset is not None:
+            for axis, value in zip(OFFSET_AXES, result.base_offset, strict=True):
+                self.offset.labels(axis=axis).set(value)
+        for gauge, value in ((self.rms, result.rms_px), (self.sigma_mm, result.sigma_mm),
+                             (self.sigma_deg, result.sigma_deg)):
+            if value is not None:
+                gauge.set(value)

@@ -1,0 +1,89 @@
+"""``monoguide plant`` running: the OPC UA server and the metrics endpoint fed by one loop that reads the cell's
+state directory every ``[plant] poll_s`` (docs/opcua.md, docs/metrics.md).
+
+Its own process beside the service: it listens on sockets the service must never open (DESIGN: ``monoguide run``
+listens on none), it can be restarted, crash or be firewalled without touching the cell, and the cell's cycle never
+waits for it — it only reads the journal and ``status.json``, read-only.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import datetime
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from monoguide.daemon.plant._address_space import CellDescription, Recipe
+from monoguide.daemon.plant._cell_view import CellView
+from monoguide.daemon.plant._metrics import PlantMetrics
+from monoguide.daemon.plant._opcua import PlantOpcUa
+from monoguide.daemon.plant._pki import ServerIdentity
+from monoguide.daemon.plant._settings import PlantSettings
+
+log = logging.getLogger(__name__)
+
+DEFAULT_PART_NAME = "part"
+
+
+@dataclass(frozen=True)
+class PlantEndpoints:
+    """Where the plant serves, said once it listens."""
+
+    opcua_url: str
+    metrics_url: str
+    identity: ServerIdentity
+
+
+def describe_cell(config: Any, last_results: int) -> CellDescription:
+    """The recipes (job number, part name) and the calibration date of a loaded cell config: every part type of
+    ``config.parts`` when the config has them, else its one part as job 1."""
+    parts = tuple(getattr(config, "parts", ()) or ())
+    recipes = tuple(Recipe(int(p.job), str(p.name)) for p in parts)
+    if not recipes:
+        recipes = (Recipe(1, str(getattr(config.part, "name", None) or DEFAULT_PART_NAME)),)
+    robot = getattr(config, "robot", None)
+    simulated = config.camera.backend == "sim" or bool(robot is not None and robot.simulated)
+    return CellDescription(config.name, recipes, calibration_date(config.calibration), simulated, last_results)
+
+
+def calibration_date(provenance: dict[str, Any] | None) -> float | None:
+    """``[calibration] date`` (ISO 8601, written by `monoguide calibrate`) as Unix s; None when absent or unreadable."""
+    date = (provenance or {}).get("date")
+    try:
+        parsed = datetime.datetime.fromisoformat(str(date))
+    except ValueError:
+        return None
+    if parsed.tzinfo is None:
+        parsed = parsed.astimezone()  # a local time, as the wizard writes it without an offset
+    return parsed.timestamp()
+
+
+async def serve_plant(config: Any, settings: PlantSettings, state_dir: Path, stop: asyncio.Event,
+                      on_ready: Callable[[PlantEndpoints], None] | None = None) -> None:
+    """Serve until ``stop`` is set. Raises :class:`PlantListenFailed`, :class:`PlantCertificateError`."""
+    cell = describe_cell(config, settings.last_results)
+    view = CellView(state_dir)
+    metrics = PlantMetrics(cell.calibration_date)
+    opcua = PlantOpcUa(settings, state_dir, cell)
+    try:
+        metrics_url = metrics.start(settings.metrics_host, settings.metrics_port)
+        identity = await opcua.start()
+        newest, counts = view.start(settings.last_results)
+        metrics.seed(counts, newest)
+        await opcua.seed(newest)
+        if on_ready is not None:
+            on_ready(PlantEndpoints(opcua.url, metrics_url, identity))
+        while not stop.is_set():
+            reading = view.poll()
+            await opcua.show(reading)
+            metrics.show(reading)
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(stop.wait(), settings.poll_s)
+    finally:
+        await opcua.stop()
+        metrics.stop()
+        view.close()
