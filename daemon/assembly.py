@@ -95,7 +95,7 @@ def build_robot(config: CellConfig, state_file: Path | None = None) -> Robot:
         host, port = str(listens["host"]), int(listens["port"])
     timeouts = {"connect_timeout_s": r.connect_timeout_s, "move_timeout_s": r.move_timeout_s,
                 "ack_timeout_s": r.ack_timeout_s, "stale_timeout_s": r.stale_timeout_s,
-                "T_b_f_taught": config.taught_flange_poses(), "pose_tolerance_mm": r.pose_tolerance_mm,
+                "T_b_f_taught": config.cell_taught_flange_poses(), "pose_tolerance_mm": r.pose_tolerance_mm,
                 "pose_tolerance_deg": r.pose_tolerance_deg}
     if r.make == "ur":
         return UrRobot(host, port, frequency_hz=r.rtde_frequency_hz, **timeouts)
@@ -115,7 +115,7 @@ def sim_cell_spec(config: CellConfig) -> SimCellSpec:
     """The simulated cell's definition from the cell config (``[sim]`` with the shared sections). With ``[sim]
     truth_config`` the cell is that file's: this file's calibration values are then only what the service
     believes (``monoguide simulate --calibration``), the simulated devices keep the truth."""
-    from monoguide.drivers.sim.cell import SimCellSpec, SimTarget
+    from monoguide.drivers.sim.cell import SimCellSpec, SimPartType, SimTarget
 
     sim = config.sim
     if sim is None:
@@ -134,7 +134,7 @@ def sim_cell_spec(config: CellConfig) -> SimCellSpec:
         hole_radius_mm=config.part.hole_radius_mm,
         T_cf_w0=config.reference.T_cf_w0,
         T_cf_b=config.reference.T_cf_b,
-        T_cf_si=tuple(p.T_cf_si for p in config.measuring_poses),
+        T_cf_si=tuple(p.T_cf_si for p in config.cell_poses),
         T_f_c=sim.T_f_c,
         point_names=config.part.point_names,
         T_cf_tracker=sim.T_cf_tracker,
@@ -152,6 +152,8 @@ def sim_cell_spec(config: CellConfig) -> SimCellSpec:
         focus_distance_mm=sim.focus_distance_mm,
         aperture_mm=sim.aperture_mm,
         target_marks=config.calibration_target.marks if config.calibration_target is not None else None,
+        part_types=tuple(SimPartType(p.job, p.part.points_w, p.part.hole_radius_mm, p.T_cf_w0, p.part.point_names,
+                                     p.measuring_poses[0].number) for p in config.parts),
     )
 
 

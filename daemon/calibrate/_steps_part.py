@@ -82,9 +82,9 @@ def run_sfi(rig: CalibrationRig, earlier: dict[str, dict[str, Any]]) -> dict[str
                 where = f"{pose.name}, placement {p + 1}, visit {v + 1}"
                 if last_stop == i or last_stop is None:  # each visit a fresh stop: go elsewhere first
                     away = (i + 1) % n_poses
-                    rig.robot.move_to_measuring_pose(away)
+                    rig.robot.move_to_measuring_pose(cfg.measuring_poses[away].number - 1)
                     last_stop = away
-                status = rig.robot.move_to_measuring_pose(i)
+                status = rig.robot.move_to_measuring_pose(pose.number - 1)  # the cell's pose
                 last_stop = i
                 image = _full_image(rig, rig.camera.grab(cfg.camera.grab_timeout_s).image)
                 try:

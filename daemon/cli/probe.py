@@ -155,10 +155,10 @@ def _probe_tracker(cfg: CellConfig, options: ProbeOptions, console: Console) -> 
 
 
 def _probe_robot(cfg: CellConfig, options: ProbeOptions, console: Console) -> None:
-    n = len(cfg.measuring_poses)
+    n = len(cfg.cell_poses)
     if options.goto is not None and not 1 <= options.goto <= n:
         raise ConfigError(f"--goto {options.goto}: the cell has measuring poses 1..{n} "
-                          f"({', '.join(p.name for p in cfg.measuring_poses)})")
+                          f"({', '.join(p.name for p in cfg.cell_poses)})")
     robot = build_robot(cfg, options.state_file)
     identity = robot.open()
     try:
@@ -168,7 +168,7 @@ def _probe_robot(cfg: CellConfig, options: ProbeOptions, console: Console) -> No
         if options.goto is not None:
             i = options.goto - 1
             status = robot.move_to_measuring_pose(i)
-            _say(console, f"in position at {cfg.measuring_poses[i].name} (request {status.ack_sequence})")
+            _say(console, f"in position at {cfg.cell_poses[i].name} (request {status.ack_sequence})")
             _say_robot_status(console, status, cfg)
         if options.write_zero:
             sequence = robot.write_base_offset(np.eye(4))
@@ -178,7 +178,7 @@ def _probe_robot(cfg: CellConfig, options: ProbeOptions, console: Console) -> No
 
 
 def _say_robot_status(console: Console, status: RobotStatus, cfg: CellConfig) -> None:
-    at = cfg.measuring_poses[status.in_position - 1].name if 1 <= status.in_position <= len(cfg.measuring_poses) \
+    at = cfg.cell_poses[status.in_position - 1].name if 1 <= status.in_position <= len(cfg.cell_poses) \
         else "no measuring pose"
     _say(console, f"mode {status.mode}, safety {status.safety}, program "
          f"{'running' if status.program_running else 'NOT running'}, {'ready' if status.ready else 'NOT READY'}, "

@@ -29,6 +29,7 @@ import typer
 from monoguide.daemon.cli._policy import fail
 from monoguide.daemon.config import CellConfig, load_cell_config
 from monoguide.daemon.simulate import FAULT_COMMANDS, ROBOT_ACTIONS, SimulatedCell
+from monoguide.drivers.errors import ConfigError
 from monoguide.solver.errors import MonoguideError
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -52,6 +53,10 @@ def sim_cell(
         int | None, typer.Option("--parts", min=0, help="the simulated PLC plays this many parts, then only beats "
                                                         "its heartbeat (default: parts without end)")
     ] = None,
+    part_types: Annotated[
+        str | None, typer.Option("--part-types", help="the jobs of the parts the line brings, in turn, e.g. 1,2,2,1 "
+                                                      "(default: the config's first part type)")
+    ] = None,
 ) -> None:
     """Start the simulated cell's device processes and keep them running until Ctrl-C or SIGTERM; fault commands
     on standard input (plc|robot <fault>, camera <failure> \\[count])."""
@@ -59,7 +64,7 @@ def sim_cell(
         try:
             cfg = load_cell_config(config)
             with SimulatedCell.start(cfg, config, state_file, plc=not no_plc, truth_log=truth_log,
-                                     parts=parts) as cell:
+                                     parts=parts, part_types=_part_types(part_types)) as cell:
                 _say_where(cfg, cell, parts)
                 cell.serve(lambda: stop.signum != 0, typer.echo)
                 typer.echo(f"stopping ({signal.Signals(stop.signum).name})", err=True)
@@ -68,6 +73,15 @@ def sim_cell(
 
 
 # --- private -----------------------------------------------------------------------------------
+
+
+def _part_types(text: str | None) -> tuple[int, ...]:
+    if text is None:
+        return ()
+    try:
+        return tuple(int(v) for v in text.split(","))
+    except ValueError:
+        raise ConfigError(f"--part-types {text!r}: expected job numbers separated by commas, e.g. 1,2,2,1") from None
 
 
 class _Stop:

@@ -18,6 +18,7 @@ from monoguide.daemon.config._calibration import (
 from monoguide.daemon.config._camera import INTRINSICS_KEYS, CameraConfig
 from monoguide.daemon.config._cell import (
     OPTIONAL_SECTIONS,
+    PARTS_SECTIONS,
     REQUIRED_SECTIONS,
     CellConfig,
     load_cell_config,
@@ -26,12 +27,14 @@ from monoguide.daemon.config._cell import (
 from monoguide.daemon.config._devices import PlcConfig, RobotConfig, TrackerConfig
 from monoguide.daemon.config._layout import LayoutConfig
 from monoguide.daemon.config._part import MeasuringPose, PartConfig, ReferenceConfig
+from monoguide.daemon.config._parts import MAX_JOB, PartType
 from monoguide.daemon.config._service import ChecksConfig, ServiceConfig
 from monoguide.daemon.config._sim import SimConfig, default_sim_state_file
 
 __all__ = [
-    "BOUNDS", "CALIBRATION_STEPS", "INTRINSICS_KEYS", "OPTIONAL_SECTIONS", "REQUIRED_SECTIONS",
+    "BOUNDS", "CALIBRATION_STEPS", "INTRINSICS_KEYS", "MAX_JOB", "OPTIONAL_SECTIONS", "PARTS_SECTIONS",
+    "REQUIRED_SECTIONS",
     "CalibrationTarget", "CalibrationTargetConfig", "CameraConfig", "CellConfig", "CellFrameConfig", "ChecksConfig",
-    "LayoutConfig", "MeasuringPose", "PartConfig", "PlcConfig", "ReferenceConfig", "RobotConfig", "ServiceConfig",
-    "SimConfig", "TrackerConfig", "default_sim_state_file", "load_cell_config", "require_sections",
+    "LayoutConfig", "MeasuringPose", "PartConfig", "PartType", "PlcConfig", "ReferenceConfig", "RobotConfig",
+    "ServiceConfig", "SimConfig", "TrackerConfig", "default_sim_state_file", "load_cell_config", "require_sections",
 ]

@@ -27,7 +27,8 @@ from __future__ import annotations
 import os
 import tomllib
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -51,6 +52,7 @@ from monoguide.daemon.config._part import (
     read_part,
     read_reference,
 )
+from monoguide.daemon.config._parts import DEFAULT_PART_NAME, PartType, read_parts, single_part
 from monoguide.daemon.config._reader import ConfigTable
 from monoguide.daemon.config._service import ChecksConfig, ServiceConfig, read_checks, read_service
 from monoguide.daemon.config._sim import SimConfig, read_sim
@@ -61,7 +63,8 @@ from monoguide.solver.consistency import MIN_OBSERVATIONS
 
 COLLINEAR_MM = 1e-3  # holes within this of one line leave the rotation about it unsolved
 
-REQUIRED_SECTIONS = ("cell", "camera", "part", "reference", "measuring_poses")
+REQUIRED_SECTIONS = ("cell", "camera", "part", "reference", "measuring_poses")  # the single-part form
+PARTS_SECTIONS = ("cell", "camera", "parts", "measuring_poses")  # the form of several part types ([reference]: T_cf_b)
 
 # name -> reader of the optional sections; each has a CellConfig field of the same name. Add yours here.
 OPTIONAL_SECTIONS: dict[str, Callable[[ConfigTable], Any]] = {
@@ -97,12 +100,44 @@ class CellConfig:
     cell_frame: CellFrameConfig | None = None
     calibration_target: CalibrationTargetConfig | None = None
     calibration: dict[str, Any] | None = None  # provenance written by `monoguide calibrate`, as read
+    # the part type this config is the view of (part, reference, measuring_poses and layout are its), and all of them
+    job: int = 1
+    part_name: str = DEFAULT_PART_NAME
+    parts: tuple[PartType, ...] = ()
+    cell_poses: tuple[MeasuringPose, ...] = ()  # every measuring pose of the cell, in robot pose number order
+
+    @property
+    def jobs(self) -> tuple[int, ...]:
+        """The job numbers the PLC may ask for (register 1)."""
+        return tuple(p.job for p in self.parts)
+
+    def for_job(self, job: int) -> CellConfig:
+        """The cell as part type ``job`` sees it: its holes, reference, measuring poses and layout (built at load,
+        so a job switch costs a lookup); :class:`ConfigError` naming the jobs there are for any other."""
+        try:
+            return self._views[job]
+        except KeyError:
+            raise ConfigError(f"{self.path}: no part of job {job}; the cell's jobs are "
+                              f"{', '.join(p.describe() for p in self.parts)}") from None
+
+    @cached_property
+    def _views(self) -> dict[int, CellConfig]:
+        return {p.job: self if p.job == self.job else replace(
+            self, part=p.part, reference=ReferenceConfig(p.T_cf_w0, self.reference.T_cf_b),
+            measuring_poses=p.measuring_poses, layout=p.layout, job=p.job, part_name=p.name) for p in self.parts}
 
     def taught_flange_poses(self) -> tuple[np.ndarray, ...]:
-        """``T_b_f`` of each measuring pose: as taught, else from its calibrated camera pose (empty when the config
-        cannot say): the robot adapter checks each stop against it, the cycle measures the robot's stand-off."""
+        """``T_b_f`` of each measuring pose of this part type: as taught, else from its calibrated camera pose (empty
+        when the config cannot say): the cycle measures the robot's stand-off from it."""
+        return self._taught(self.measuring_poses)
+
+    def cell_taught_flange_poses(self) -> tuple[np.ndarray, ...]:
+        """``T_b_f`` of every measuring pose of the cell, in pose number order: the robot adapter checks each stop."""
+        return self._taught(self.cell_poses)
+
+    def _taught(self, poses: tuple[MeasuringPose, ...]) -> tuple[np.ndarray, ...]:
         return frames.taught_flange_poses(self.reference.T_cf_b, self.camera.T_f_c,
-                                          [(p.T_b_f, p.T_cf_si) for p in self.measuring_poses])
+                                          [(p.T_b_f, p.T_cf_si) for p in poses])
 
 
 def load_cell_config(path: str | os.PathLike[str]) -> CellConfig:
@@ -117,18 +152,33 @@ def load_cell_config(path: str | os.PathLike[str]) -> CellConfig:
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML: {exc}") from exc
     root = ConfigTable(raw, path)
-    root.reject_unknown((*REQUIRED_SECTIONS, *OPTIONAL_SECTIONS))  # first: a misspelt section is not "missing"
+    root.reject_unknown((*REQUIRED_SECTIONS, *PARTS_SECTIONS, *OPTIONAL_SECTIONS))  # a misspelt section: not "missing"
     name = _cell_name(root.table("cell"))
     camera = read_camera(root.table("camera"))
-    part = read_part(root.table("part"))
-    reference = read_reference(root.table("reference"))
-    poses = read_measuring_poses(root.tables("measuring_poses", required=True), reference, camera,
-                                 len(part.points_w))
+    if root.has("parts"):
+        if root.has("part"):
+            raise ConfigError(f"{path}: [part] and [[parts]]: give one [part] (job 1) or [[parts]], not both")
+        reference = read_reference(root.optional_table("reference"), with_part=False)
+        cell_poses = read_measuring_poses(root.tables("measuring_poses", required=True), reference, camera, None)
+        parts = read_parts(root.tables("parts", required=True), cell_poses)
+    else:
+        part_table = root.table("part")
+        part_name = part_table.text("name", DEFAULT_PART_NAME, nonempty=True)
+        part = read_part(part_table)
+        reference = read_reference(root.table("reference"))
+        cell_poses = read_measuring_poses(root.tables("measuring_poses", required=True), reference, camera,
+                                          len(part.points_w))
+        parts = (single_part(part_name, part, reference.T_cf_w0, cell_poses, None),)
     optional = {key: read(root.table(key)) if root.has(key) else None for key, read in OPTIONAL_SECTIONS.items()}
-    config = CellConfig(path, name, camera, part, reference, poses, **optional)
+    parts = tuple(replace(p, layout=p.layout or optional["layout"]) for p in parts)
+    first = parts[0]
+    config = CellConfig(path, name, camera, first.part, ReferenceConfig(first.T_cf_w0, reference.T_cf_b),
+                        first.measuring_poses, **{**optional, "layout": first.layout}, job=first.job,
+                        part_name=first.name, parts=parts, cell_poses=cell_poses)
     _check_backends(config)
     if config.robot is not None or config.plc is not None:  # a cell that runs cycles
-        _check_redundancy(config)
+        for job in config.jobs:
+            _check_redundancy(config.for_job(job))
     return config
 
 
@@ -182,6 +232,9 @@ def _check_redundancy(config: CellConfig) -> None:
     seen = [(pose.name, j) for pose in poses for j in pose.points]
     holes = sorted({j for _, j in seen})
     where = f"{config.path}: [[measuring_poses]] {', '.join(p.name for p in poses)}"
+    if len(config.parts) > 1:
+        where = (f"{config.path}: [[parts]] job {config.job} ({config.part_name!r}): measuring_poses "
+                 f"{', '.join(p.name for p in poses)}")
     m = len(seen)
     if m < MIN_OBSERVATIONS:
         images = ", ".join(f"{names[j]} in {pose}" for pose, j in seen)

@@ -45,8 +45,13 @@ class ReferenceConfig:
     T_cf_b: np.ndarray | None = None  # robot base in the cell frame
 
 
-def read_reference(t: ConfigTable) -> ReferenceConfig:
-    out = ReferenceConfig(t.matrix("T_cf_w0"), t.matrix("T_cf_b", None))
+def read_reference(t: ConfigTable, *, with_part: bool = True) -> ReferenceConfig:
+    """``[reference]``: ``T_cf_w0`` of the single part and the robot base; in a cell of ``[[parts]]`` each part
+    has its own ``T_cf_w0`` and this section holds the robot base alone (``with_part=False``)."""
+    if not with_part and t.has("T_cf_w0"):
+        raise ConfigError(f"{t.where}.T_cf_w0: in a cell of [[parts]] each part has its own reference: "
+                          "[[parts]] T_cf_w0")
+    out = ReferenceConfig(t.matrix("T_cf_w0") if with_part else np.eye(4), t.matrix("T_cf_b", None))
     t.done()
     return out
 
@@ -57,12 +62,14 @@ class MeasuringPose:
     T_cf_si: np.ndarray  # calibrated camera pose i in the cell frame (Eq. 6)
     points: tuple[int, ...]  # featured points expected in this view
     T_b_f: np.ndarray | None = None  # taught flange pose, when known
+    number: int = 0  # the robot pose number: its place in the cell's [[measuring_poses]] (S1 = 1)
 
 
 def read_measuring_poses(entries: list[ConfigTable], ref: ReferenceConfig, cam: CameraConfig,
-                         n_points: int) -> tuple[MeasuringPose, ...]:
+                         n_points: int | None) -> tuple[MeasuringPose, ...]:
     """Each ``[[measuring_poses]]`` entry: its camera pose ``T_cf_si`` as written, or composed from its taught
-    flange pose, the robot base and the camera mounting."""
+    flange pose, the robot base and the camera mounting. ``n_points``: the single part's holes, which ``points``
+    indexes; None in a cell of ``[[parts]]``, where each part says which of its holes a pose sees."""
     if len(entries) > MAX_MEASURING_POSES:
         raise ConfigError(f"{entries[0].file}: [[measuring_poses]]: {len(entries)} poses: must be 1 to "
                           f"{MAX_MEASURING_POSES} (the robot programs' pose numbers 101 and up are base-calibration "
@@ -73,6 +80,14 @@ def read_measuring_poses(entries: list[ConfigTable], ref: ReferenceConfig, cam: 
         if (first := next((j for j, p in enumerate(poses) if p.name == name), None)) is not None:
             raise ConfigError(f"{t.where}.name = {name!r}: already the name of [[measuring_poses]] #{first + 1}; "
                               "each pose's images, taught pose and calibration are filed under its own name")
+        if n_points is None:
+            if t.has("points"):
+                raise ConfigError(f"{t.where}.points: in a cell of [[parts]] each part says which of its holes a "
+                                  f"pose sees: [[parts]] measuring_poses = {{ {name} = [\"P1\"] }}")
+            T_cf_si, T_b_f = _camera_pose(t, ref, cam)
+            t.done()
+            poses.append(MeasuringPose(name, T_cf_si, (), T_b_f, i + 1))
+            continue
         points = t.ints("points", None, tuple(range(n_points)))
         if not points:
             raise ConfigError(f"{t.where}.points = []: a measuring pose sees at least one featured hole")
@@ -80,14 +95,19 @@ def read_measuring_poses(entries: list[ConfigTable], ref: ReferenceConfig, cam: 
             raise ConfigError(f"{t.where}.points = {list(points)}: {bad} not among the {n_points} points_w")
         if twice := sorted({p for p in points if points.count(p) > 1}):
             raise ConfigError(f"{t.where}.points = {list(points)}: {twice} listed twice (one image of a hole per view)")
-        T_cf_si, T_b_f = t.matrix("T_cf_si", None), t.matrix("T_b_f", None)
-        if T_cf_si is None:
-            if T_b_f is None or ref.T_cf_b is None or cam.T_f_c is None:
-                raise ConfigError(f"{t.where}: give T_cf_si, or T_b_f with [reference] T_cf_b and [camera] T_f_c")
-            T_cf_si = compose(ref.T_cf_b, T_b_f, cam.T_f_c)
+        T_cf_si, T_b_f = _camera_pose(t, ref, cam)
         t.done()
-        poses.append(MeasuringPose(name, T_cf_si, points, T_b_f))
+        poses.append(MeasuringPose(name, T_cf_si, points, T_b_f, i + 1))
     return tuple(poses)
+
+
+def _camera_pose(t: ConfigTable, ref: ReferenceConfig, cam: CameraConfig) -> tuple[np.ndarray, np.ndarray | None]:
+    T_cf_si, T_b_f = t.matrix("T_cf_si", None), t.matrix("T_b_f", None)
+    if T_cf_si is None:
+        if T_b_f is None or ref.T_cf_b is None or cam.T_f_c is None:
+            raise ConfigError(f"{t.where}: give T_cf_si, or T_b_f with [reference] T_cf_b and [camera] T_f_c")
+        T_cf_si = compose(ref.T_cf_b, T_b_f, cam.T_f_c)
+    return T_cf_si, T_b_f
 
 
 def _unique_names(names: tuple[str, ...], where: str) -> None:

@@ -159,6 +159,7 @@ class RecordBuilder:
         T_s1_cf = frames.invert(T_cf_si[0])
         assert self.config.reference.T_cf_b is not None
         return {**copy.deepcopy(self._template), "id": f"job{job}-{stamp}-{time.monotonic_ns() % 1_000_000:06d}",
+                "job": job, "part": self.config.part_name,
                 "views": [{"T_s1_si": (T_s1_cf @ T).tolist()} for T in T_cf_si],
                 "T_s1_w0": (T_s1_cf @ self.config.reference.T_cf_w0).tolist(),
                 "T_b_s1": (frames.invert(self.config.reference.T_cf_b) @ T_cf_si[0]).tolist(),

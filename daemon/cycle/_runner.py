@@ -135,7 +135,7 @@ class CycleRunner:
                     futures[-1].result()  # a view already failed: no need to visit the next one
                 t0 = time.monotonic()
                 with device_errors("robot"):
-                    status = self.robot.move_to_measuring_pose(i)
+                    status = self.robot.move_to_measuring_pose(poses[i].number - 1)  # the cell's pose
                 t1 = time.monotonic()
                 _check_abort(abort, abort_error)
                 with device_errors("camera"):

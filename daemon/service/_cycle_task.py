@@ -33,7 +33,6 @@ from monoguide.solver.errors import MonoguideError
 
 log = logging.getLogger(__name__)
 
-JOBS = (1,)  # the part entries of a config: one part, job 1 — the one place the job rule lives
 RunnerFactory = Callable[[CellConfig, Any, Any, "Path | None"], Any]
 
 
@@ -81,25 +80,35 @@ class Abort:
 
 
 class Runners:
-    """The cycle runner, kept while the camera and the robot stay the same objects (a device reopened: a new
-    one, the old one closed)."""
+    """A cycle runner per job (part type), each built the first time its job is asked for and kept while the camera
+    and the robot stay the same objects (a device reopened: new ones, the old ones closed). A job switch is a
+    lookup: no reconnect, no reload."""
 
     def __init__(self, config: CellConfig, factory: RunnerFactory) -> None:
         self.config, self.factory = config, factory
-        self.runner: Any = None
+        self.runners: dict[int, Any] = {}
         self._devices: tuple[Any, Any] | None = None
 
-    def for_devices(self, camera: Any, robot: Any, images_dir: Path | None) -> Any:
-        if self.runner is None or self._devices != (camera, robot):
+    @property
+    def jobs(self) -> tuple[int, ...]:
+        """The job rule's one source: the config's part types."""
+        return self.config.jobs
+
+    def for_devices(self, job: int, camera: Any, robot: Any, images_dir: Path | None) -> Any:
+        if self._devices != (camera, robot):
             self.close()
-            self.runner, self._devices = self.factory(self.config, camera, robot, images_dir), (camera, robot)
-        self.runner.images_dir = images_dir
-        return self.runner
+            self._devices = (camera, robot)
+        runner = self.runners.get(job)
+        if runner is None:
+            runner = self.runners[job] = self.factory(self.config.for_job(job), camera, robot, images_dir)
+        runner.images_dir = images_dir
+        return runner
 
     def close(self) -> None:
-        if self.runner is not None:
-            self.runner.close()
-        self.runner = self._devices = None
+        for runner in self.runners.values():
+            runner.close()
+        self.runners.clear()
+        self._devices = None
 
 
 class CycleTask:
@@ -116,9 +125,10 @@ class CycleTask:
         machine = self.machine
         try:
             self.journal.check_identity()  # a journal deleted or replaced: refuse before the robot moves
-            job = check_job(inputs, JOBS)
+            job = check_job(inputs, self.runners.jobs)
             images_dir = self.journal.images_dir / f"cycle-{self.journal.next_number()}" if self.keep_images else None
-            runner = self.runners.for_devices(self.devices.handle("camera"), self.devices.handle("robot"), images_dir)
+            runner = self.runners.for_devices(job, self.devices.handle("camera"), self.devices.handle("robot"),
+                                              images_dir)
             outcome.measurement = await self._stage(runner.measure, job, self.abort.event, lambda: self.abort.error)
             machine.fire(Cause.VIEWS_MEASURED, f"{len(outcome.measurement.captures)} views")
             outcome.solution = await self._stage(runner.solve, outcome.measurement)

@@ -62,13 +62,20 @@ class SimulatedCell(Owner):
 
     @classmethod
     def start(cls, cfg: CellConfig, config: Path, state_file: Path | None = None, *, plc: bool = True,
-              truth_log: Path | None = None, parts: int | None = None) -> SimulatedCell:
+              truth_log: Path | None = None, parts: int | None = None,
+              part_types: tuple[int, ...] = ()) -> SimulatedCell:
         """Start the cell of ``cfg`` (read from ``config``); :class:`ConfigError` when it has nothing to simulate or
         a file cannot be written, :class:`DeviceBusy` when another sim-cell holds the state file, a device error
-        when a device does not start. Nothing is left running or claimed when it fails."""
+        when a device does not start. Nothing is left running or claimed when it fails. ``part_types``: the jobs of
+        the parts the line brings, in turn (the part supply presents them, the simulated PLC asks for them);
+        default: the config's first part type."""
         _check(cfg, truth_log)
+        if bad := [job for job in part_types if job not in cfg.jobs]:
+            raise ConfigError(f"--part-types {','.join(map(str, part_types))}: {bad} not among the jobs of {cfg.path} "
+                              f"({', '.join(p.describe() for p in cfg.parts)})")
         try:
-            return cls._start(cfg, config, state_file or sim_state_file(cfg), plc, truth_log, parts)
+            return cls._start(cfg, config, state_file or sim_state_file(cfg), plc, truth_log, parts,
+                              part_types or (cfg.jobs[0],))
         except OSError as exc:  # a state or targets file that cannot be written where the config puts it
             raise ConfigError(f"cannot write {exc.filename or 'a sim-cell file'}: {exc.strerror or exc}") from exc
 
@@ -105,7 +112,7 @@ class SimulatedCell(Owner):
 
     @classmethod
     def _start(cls, cfg: CellConfig, config: Path, state_path: Path, plc: bool, truth_log: Path | None,
-               parts: int | None) -> SimulatedCell:
+               parts: int | None, part_types: tuple[int, ...]) -> SimulatedCell:
         with contextlib.ExitStack() as resources:
             claim = resources.enter_context(StateFileClaim.take(state_path))
             devices = resources.enter_context(Devices())  # stopped before the claim's files are deleted
@@ -119,10 +126,11 @@ class SimulatedCell(Owner):
             }
             robot = None
             if cfg.robot is not None and cfg.robot.simulated:
-                robot, state["robot"] = _start_robot(cfg, sim, claim, devices, truth_log)
+                robot, state["robot"] = _start_robot(cfg, sim, claim, devices, truth_log, part_types)
             line = None
             if plc and cfg.plc is not None:
-                line = devices.start("plc", plc_argv(cfg, parts, grasp=robot is not None), commands=True)
+                line = devices.start("plc", plc_argv(cfg, parts, grasp=robot is not None, jobs=part_types),
+                                     commands=True)
                 state["plc"] = {"host": line.host, "port": line.port, "pid": line.process.pid}
             write_sim_state(claim.path, state)
             return cls(cfg, claim.path, state, devices, tracker, robot, line, resources.pop_all())
@@ -160,11 +168,11 @@ def _check(cfg: CellConfig, truth_log: Path | None) -> None:
 
 
 def _start_robot(cfg: CellConfig, sim: Any, claim: StateFileClaim, devices: Devices,
-                 truth_log: Path | None) -> tuple[Device, dict[str, Any]]:
+                 truth_log: Path | None, part_types: tuple[int, ...]) -> tuple[Device, dict[str, Any]]:
     """The simulated robot controller with its spec and truth files beside the state file; its state entry."""
     assert cfg.robot is not None
     spec, truth = claim.beside("-robot.json"), claim.beside("-robot-truth.json")
-    sim.write_robot_spec(spec)
+    sim.write_robot_spec(spec, part_types=part_types)
     if truth_log is not None:
         truth_log = truth_log.resolve()
         truth_log.parent.mkdir(parents=True, exist_ok=True)

@@ -118,15 +118,16 @@ def robot_argv(cfg: CellConfig, spec: Path, truth: Path, seed: int, truth_log: P
     return argv + (["--truth-log", str(truth_log)] if truth_log is not None else [])
 
 
-def plc_argv(cfg: CellConfig, parts: int | None, grasp: bool) -> list[str]:
+def plc_argv(cfg: CellConfig, parts: int | None, grasp: bool, jobs: tuple[int, ...] = (1,)) -> list[str]:
     """The simulated line PLC on ``[plc] host:port`` with the block at ``base`` for ``unit``, playing parts
-    (``parts``: that many, then only its heartbeat). ``grasp``: it gives the grasp go after each good result and
+    (``parts``: that many, then only its heartbeat), asking for the ``jobs`` in turn.
+    ``grasp``: it gives the grasp go after each good result and
     waits for the robot's answer (a simulated robot is there)."""
     p = cfg.plc
     assert p is not None
     argv = [sys.executable, "-m", "monoguide.drivers.sim.plc", "--host", p.host, "--port", str(p.port),
             "--unit", str(p.unit), "--base", str(p.base), "--word-order", p.word_order,
-            "--heartbeat-period", str(min(0.5, p.heartbeat_timeout_s / 4))]
+            "--heartbeat-period", str(min(0.5, p.heartbeat_timeout_s / 4)), "--jobs", ",".join(map(str, jobs))]
     if parts is not None:
         argv += ["--parts", str(parts)]
     if grasp:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +37,19 @@ class SimTarget:
     name: str
     T_cf_t: np.ndarray
     points_t: np.ndarray
+
+
+@dataclass(frozen=True)
+class SimPartType:
+    """One part type the simulated line supplies (the config's ``[[parts]]``): its holes, its reference, and the
+    robot pose number of its first measuring pose (a part of this type arrives when that pose is requested)."""
+
+    job: int
+    points_w: np.ndarray
+    hole_radius_mm: float
+    T_cf_w0: np.ndarray
+    point_names: tuple[str, ...]
+    first_pose: int = 1
 
 
 @dataclass(frozen=True)
@@ -73,6 +86,7 @@ class SimCellSpec:
     focus_distance_mm: float | None = None  # the lens is sharp at this depth (camera z); None: no defocus
     aperture_mm: float = 0.0  # entrance pupil diameter: defocus grows with it away from the focus plane
     target_marks: TargetMarks | None = None  # the calibration targets' circular marks; None: the default target's
+    part_types: tuple[SimPartType, ...] = ()  # every part type of the cell; the fields above hold the current one's
 
 
 @dataclass
@@ -100,6 +114,7 @@ class SimCell:
 
     def __init__(self, spec: SimCellSpec) -> None:
         self.spec = spec
+        self.part_job = spec.part_types[0].job if spec.part_types else 1  # the part type in the cell
         self.rng = np.random.default_rng(spec.seed)
         self._T_cf_w = spec.T_cf_w0.copy()
         self._T_b_f_actual: dict[int, np.ndarray] = {}
@@ -137,6 +152,21 @@ class SimCell:
 
     def set_part_pose(self, T_cf_w: np.ndarray) -> None:
         self._T_cf_w = np.array(T_cf_w, dtype=float)
+
+    def set_part_type(self, job: int) -> None:
+        """A part of type ``job`` is in the cell: its holes and reference become the spec's current ones."""
+        if job == self.part_job:
+            return
+        part = self.part_type(job)
+        self.spec = replace(self.spec, points_w=part.points_w, hole_radius_mm=part.hole_radius_mm,
+                            T_cf_w0=part.T_cf_w0, point_names=part.point_names, T_w_g=None)
+        self.part_job = job
+
+    def part_type(self, job: int) -> SimPartType:
+        for part in self.spec.part_types:
+            if part.job == job:
+                return part
+        raise ValueError(f"part type {job} is not one of the cell's ({[p.job for p in self.spec.part_types]})")
 
     def points_cf_true(self) -> np.ndarray:
         """The featured hole centres of the current part in the cell frame, (n, 3)."""
@@ -224,11 +254,14 @@ class SimCell:
         """The taught grasp pose in the robot base frame (on the reference part)."""
         return compose(self.T_b_w0(), self.T_w_g)
 
-    def write_robot_spec(self, path: str | os.PathLike[str], part: int = 0) -> Path:
+    def write_robot_spec(self, path: str | os.PathLike[str], part: int = 0,
+                         part_types: tuple[int, ...] = ()) -> Path:
         """Write what a simulated robot controller needs (taught poses, repeatability, the reference and the
-        current part ``part`` in its base frame) for its process; atomically, it re-reads on change."""
+        current part ``part`` in its base frame) for its process; atomically, it re-reads on change.
+        ``part_types``: the jobs of the parts its part supply presents, in turn (default: the current type)."""
         path = Path(path)
         s = self.spec
+        types = [self._supplied_type(p) for p in s.part_types] or [self._supplied_type(None)]
         data = {
             "format": ROBOT_SPEC_FORMAT,
             "part": part,
@@ -245,9 +278,23 @@ class SimCell:
                 "T_cf_b": s.T_cf_b.tolist(), "T_cf_w0": s.T_cf_w0.tolist(),
                 "centre_w": s.points_w.mean(axis=0).tolist(),
                 "translation_mm": list(s.deviation_translation_mm), "rotation_deg": list(s.deviation_rotation_deg),
+                "types": types, "sequence": list(part_types or (self.part_job,)),
             },
         }
         return write_atomic(path, json.dumps(data, indent=1))
+
+    def _supplied_type(self, part: SimPartType | None) -> dict[str, object]:
+        """What the part supply needs of one part type (None: the spec's current part)."""
+        s = self.spec
+        if part is None or part.job == self.part_job:
+            job, T_cf_w0, points, T_w_g = self.part_job, s.T_cf_w0, s.points_w, self.T_w_g
+            first = part.first_pose if part is not None else 1
+        else:
+            job, T_cf_w0, points, first = part.job, part.T_cf_w0, part.points_w, part.first_pose
+            T_w_g = make_T(np.diag([1.0, -1.0, -1.0]), points.mean(axis=0))
+        T_b_w0 = compose(invert(s.T_cf_b), T_cf_w0)
+        return {"job": job, "first_pose": first, "T_cf_w0": T_cf_w0.tolist(), "centre_w": points.mean(axis=0).tolist(),
+                "T_b_w0": T_b_w0.tolist(), "T_b_g0": compose(T_b_w0, T_w_g).tolist()}
 
     # --- SMRs for the laser tracker -------------------------------------------------------------
 

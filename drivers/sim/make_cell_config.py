@@ -1,4 +1,5 @@
-"""Write ``config/sim-cell.toml``, the simulated paper roof cell, with explicit matrices.
+"""Write ``config/sim-cell.toml``, the simulated paper roof cell (and its second part type, a hood), with explicit
+matrices.
 
 ``python -m monoguide.drivers.sim.make_cell_config [OUT.toml]`` (stdout without an argument).
 The cell is the paper's (Sec. 5.1-5.2): Table 1 points, Table 2 intrinsics, the calibrated ``T_cf_w0``
@@ -9,6 +10,11 @@ and +-5 deg on every axis, which is also the range the simulated parts are drawn
 plans the same poses. The simulated robot's taught flange poses follow from them
 (``SimCell.T_b_f_taught = inv(T_cf_b) T_cf_si inv(T_f_c)``). A real cell writes its taught and
 calibrated poses into the same keys.
+
+The cell's second part type (job 2) is a 1.5 m x 1.0 m hood with 6 featured holes (:data:`HOOD_POINTS_W`), lying
+where the roof lies (its holes' centroid on the roof's), seen straight down from 650 mm by 3 measuring poses with 2
+holes each (:func:`hood_poses`), so that the cell also exercises views of several holes. They are not planned (the
+planner plans one hole per view) but assessed (``assess_layout``) over the same envelope and constraints.
 """
 
 from __future__ import annotations
@@ -33,6 +39,7 @@ from monoguide.solver.planning import (
     LayoutRequest,
     plan_layout,
 )
+from monoguide.solver.planning.request import assess_layout
 
 # [layout]: what the measuring poses are planned for. The depth of field 450-900 mm is that of the 8.5 mm
 # lens focused at 2 near far / (near + far) = 600 mm with its blur circle DEFOCUS_CIRCLE_PX wide at both ends
@@ -51,6 +58,12 @@ DEFOCUS_CIRCLE_PX = 2.0
 SIGMA_PX = 0.1
 REPEATABILITY_MM, REPEATABILITY_DEG = 0.05, 0.01
 POINT_NAMES = ("P1", "P2", "P3", "P4")
+HOOD_POINT_NAMES = ("H1", "H2", "H3", "H4", "H5", "H6")
+HOOD_POINTS_W = np.array([[150.0, 120.0, 0.0], [400.0, 120.0, 0.0], [1380.0, 180.0, 0.0], [1380.0, 430.0, 0.0],
+                          [600.0, 880.0, 0.0], [850.0, 880.0, 0.0]])
+HOOD_VIEWS = ((0, 1), (2, 3), (4, 5))  # the holes each hood pose sees: pairs 250 mm apart
+HOOD_STANDOFF_MM = 650.0
+HOOD_HOLE_RADIUS_MM = 4.0
 POINTS_W = np.array([[0.0, 0.0, 0.0], [1218.078, 0.0, 0.0], [1218.028, 2058.764, 0.0], [-1.017, 2059.039, -2.677]])
 T_CF_W0_PAPER = np.array([
     [-0.9998, -0.0131, -0.0120, -1381.259],
@@ -102,20 +115,47 @@ def paper_cell_poses() -> dict[str, object]:
     T_cf_b = invert(_exact(T_B_CF_PAPER))
     plan = plan_layout(layout_request())
     T_cf_s = [compose(T_cf_w0, T) for T in plan.T_w0_si]
-    # one calibration target per measuring pose, centred on the optical axis at its hole's depth, lying flat
-    # like the part (the paper's Fig. 2)
-    centre_t = TARGET_POINTS_T.mean(axis=0)
-    T_cf_t = []
-    for T, depth in zip(T_cf_s, plan.depth_mm.mean(axis=1), strict=True):
-        on_axis_cf = (T @ np.array([0.0, 0.0, depth, 1.0]))[:3]
-        R = T_cf_w0[:3, :3]
-        T_cf_t.append(make_T(R, on_axis_cf - R @ centre_t))
+    T_cf_t = _target_poses(T_cf_w0, T_cf_s, plan.depth_mm.mean(axis=1))
     return {"T_cf_w0": T_cf_w0, "T_cf_b": T_cf_b, "T_cf_s": T_cf_s, "T_cf_t": T_cf_t, "plan": plan}
+
+
+def hood_poses(T_cf_w0_roof: np.ndarray) -> dict[str, object]:
+    """The hood's reference (its holes' centroid where the roof's is), its three measuring poses (straight down
+    onto the middle of each pair of holes, the pair along the image's long side) and their assessment."""
+    shift = POINTS_W.mean(axis=0) - HOOD_POINTS_W.mean(axis=0)
+    shift[2] = 0.0
+    T_cf_w0 = compose(T_cf_w0_roof, make_T(np.eye(3), shift))
+    down_x = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])  # camera x along W x, looking down -z
+    down_y = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # camera x along W y
+    T_w0_s = []
+    for a, b in HOOD_VIEWS:
+        along_x = abs(HOOD_POINTS_W[b, 0] - HOOD_POINTS_W[a, 0]) >= abs(HOOD_POINTS_W[b, 1] - HOOD_POINTS_W[a, 1])
+        middle = (HOOD_POINTS_W[a] + HOOD_POINTS_W[b]) / 2
+        T_w0_s.append(make_T(down_x if along_x else down_y, middle + np.array([0.0, 0.0, HOOD_STANDOFF_MM])))
+    request = LayoutRequest(camera=PAPER_CAMERA, points_w=HOOD_POINTS_W, envelope=ENVELOPE, constraints=LAYOUT,
+                            sigma_px=SIGMA_PX, repeatability_mm=REPEATABILITY_MM, repeatability_deg=REPEATABILITY_DEG,
+                            point_names=HOOD_POINT_NAMES, T_f_c=T_F_C_SIM)
+    observed = [(v, j) for v, pair in enumerate(HOOD_VIEWS) for j in pair]
+    assessment = assess_layout(request, T_w0_s, observed)
+    assert assessment.margin_px_min >= LAYOUT.margin_px and assessment.sigmas is not None, "the hood's views fail"
+    return {"T_cf_w0": T_cf_w0, "T_cf_s": [compose(T_cf_w0, T) for T in T_w0_s], "plan": assessment}
+
+
+def _target_poses(T_cf_w0: np.ndarray, T_cf_s: list[np.ndarray], depths: np.ndarray) -> list[np.ndarray]:
+    """One calibration target per measuring pose, centred on the optical axis at its holes' depth, lying flat
+    like the part (the paper's Fig. 2)."""
+    centre_t = TARGET_POINTS_T.mean(axis=0)
+    R = T_cf_w0[:3, :3]
+    return [make_T(R, (T @ np.array([0.0, 0.0, depth, 1.0]))[:3] - R @ centre_t)
+            for T, depth in zip(T_cf_s, depths, strict=True)]
 
 
 def cell_config_toml() -> str:
     """The text of ``config/sim-cell.toml``."""
     m = paper_cell_poses()
+    hood = hood_poses(m["T_cf_w0"])
+    hood_plan: LayoutAssessment = hood["plan"]
+    hood_targets = _target_poses(hood["T_cf_w0"], hood["T_cf_s"], np.full(len(HOOD_VIEWS), HOOD_STANDOFF_MM))
     plan: LayoutAssessment = m["plan"]
     focus_mm, aperture_mm = defocus_for_depth_of_field(PAPER_CAMERA.fx, *LAYOUT.depth_of_field_mm, DEFOCUS_CIRCLE_PX)
     s, r = plan.sigmas, plan.sigmas_with_repeatability
@@ -128,7 +168,11 @@ def cell_config_toml() -> str:
         f"({s.sigma_origin_mm:.3f} mm at the part origin) for {SIGMA_PX:g} px,",
         f"{r.sigma_rot_deg:.4f} deg / {r.sigma_trans_mm:.3f} mm with the robot's repeatability (at the flange); "
         f"every hole >= {plan.margin_px_min:.0f} px inside the image,",
-        f"depth {plan.depth_mm_min:.0f}-{plan.depth_mm_max:.0f} mm. Edit the generator, not this file.",
+        f"depth {plan.depth_mm_min:.0f}-{plan.depth_mm_max:.0f} mm.",
+        f"Job 2, the hood: 3 poses of 2 holes each (assessed, not planned), predicted sigma "
+        f"{hood_plan.sigmas_with_repeatability.sigma_trans_mm:.3f} mm at the grasp point",
+        f"with the repeatability; every hole >= {hood_plan.margin_px_min:.0f} px inside the image.",
+        "Edit the generator, not this file.",
     ):
         doc.add(tomlkit.comment(line))
     doc.add(tomlkit.nl())
@@ -137,19 +181,37 @@ def cell_config_toml() -> str:
                      "T_f_c": matrix(T_F_C_SIM)})
     camera["intrinsics"] = _table(PAPER_CAMERA.as_dict(), "Table 2")
     doc["camera"] = camera
-    doc["part"] = _table({"hole_radius_mm": 5.0, "point_names": list(POINT_NAMES),
-                          "points_w": matrix(POINTS_W, 6, multiline=False)},
-                         "Table 1, the roof's featured holes in WF")
-    doc["reference"] = _table({"T_cf_w0": matrix(m["T_cf_w0"]), "T_cf_b": matrix(m["T_cf_b"])},
-                              "T_cf_w0 and inv(T_b_cf) of Sec. 5.2 (R[1, 1] of T_b_cf sign-corrected), orthonormalised")
+    doc["reference"] = _table({"T_cf_b": matrix(m["T_cf_b"])},
+                              "inv(T_b_cf) of Sec. 5.2 (R[1, 1] sign-corrected), orthonormalised: the robot base")
     doc["layout"] = _layout_table()
     poses = tomlkit.aot()
     for i, T in enumerate(m["T_cf_s"]):
         u, v = plan.pixels[i]
-        name = commented(tomlkit.item(f"S{i + 1}"), f"{POINT_NAMES[i]} at {plan.standoff_mm[i]:.1f} mm, line of sight "
-                         f"{plan.view_angle_deg[i]:.1f} deg off the normal, imaged at ({u:.1f}, {v:.1f}) px")
-        poses.append(_table({"name": name, "points": [i], "T_cf_si": matrix(T)}))
+        name = commented(tomlkit.item(f"S{i + 1}"), f"roof {POINT_NAMES[i]} at {plan.standoff_mm[i]:.1f} mm, line of "
+                         f"sight {plan.view_angle_deg[i]:.1f} deg off the normal, imaged at ({u:.1f}, {v:.1f}) px")
+        poses.append(_table({"name": name, "T_cf_si": matrix(T)}))
+    for k, T in enumerate(hood["T_cf_s"]):
+        holes = " and ".join(HOOD_POINT_NAMES[j] for j in HOOD_VIEWS[k])
+        poses.append(_table({"name": commented(tomlkit.item(f"S{len(m['T_cf_s']) + k + 1}"),
+                                               f"hood {holes}, straight down from {HOOD_STANDOFF_MM:g} mm"),
+                             "T_cf_si": matrix(T)}))
     doc["measuring_poses"] = poses
+    parts = tomlkit.aot()
+    parts.append(_table({
+        "job": 1, "name": "roof", "hole_radius_mm": 5.0, "point_names": list(POINT_NAMES),
+        "points_w": commented(matrix(POINTS_W, 6, multiline=False), "Table 1, the roof's featured holes in WF"),
+        "T_cf_w0": commented(matrix(m["T_cf_w0"]), "T_cf_w0 of Sec. 5.2, orthonormalised"),
+        "measuring_poses": inline_table({f"S{i + 1}": [POINT_NAMES[i]] for i in range(len(m["T_cf_s"]))}),
+    }))
+    first_hood = len(m["T_cf_s"]) + 1
+    parts.append(_table({
+        "job": 2, "name": "hood", "hole_radius_mm": HOOD_HOLE_RADIUS_MM, "point_names": list(HOOD_POINT_NAMES),
+        "points_w": matrix(HOOD_POINTS_W, 1, multiline=False),
+        "T_cf_w0": commented(matrix(hood["T_cf_w0"]), "its holes' centroid where the roof's is"),
+        "measuring_poses": inline_table({f"S{first_hood + k}": [HOOD_POINT_NAMES[j] for j in pair]
+                                         for k, pair in enumerate(HOOD_VIEWS)}),
+    }))
+    doc["parts"] = parts
     doc["cell_frame"], doc["calibration_target"] = _calibration_tables()
     doc["tracker"] = _table({
         "backend": commented(tomlkit.item("sim"), "the port is read from the state file that `monoguide sim-cell` "
@@ -179,7 +241,7 @@ def cell_config_toml() -> str:
     sim["benchmarks"] = _table({name: numbers(xyz, 1) for name, xyz in BENCHMARKS.items()},
                                "the three SMR nests that define the cell frame (where they truly are: [cell_frame])")
     targets = tomlkit.aot()
-    for i, T in enumerate(m["T_cf_t"]):
+    for i, T in enumerate([*m["T_cf_t"], *hood_targets]):
         targets.append(_table({"name": commented(tomlkit.item(f"T{i + 1}"), f"under measuring pose S{i + 1}"),
                                "T_cf_t": matrix(T), "points_t": matrix(TARGET_POINTS_T, 6, multiline=False)}))
     sim["targets"] = targets

@@ -1,9 +1,11 @@
 """The simulated cell's part supply, run by the simulated robot controller (``docs/probe.md``).
 
-Every cycle starts with a new part: when measuring pose 1 (S1) is requested, the part in the cell is
-replaced by part ``n + 1``, deviated from the reference within ``[sim.deviation]`` by a draw seeded with
-``([sim] seed, PART_STREAM, n + 1)`` — the same config gives the same parts in the same order, whatever else
-was drawn. The controller applies offsets to it and scores them; its truth file carries the part's
+Every cycle starts with a new part: when the first measuring pose of the next part's type is requested (S1 for
+the roof), the part in the cell is replaced by part ``n + 1``, deviated from its type's reference within
+``[sim.deviation]`` by a draw seeded with ``([sim] seed, PART_STREAM, n + 1)`` — the same config gives the same
+parts in the same order, whatever else was drawn. The types come in the order of ``sim-cell --part-types``
+(default: the first part type only); a PLC that asks for another job than the part on the line gets a cell with
+the last part still in it. The controller applies offsets to it and scores them; its truth file carries the part's
 ``T_cf_w`` so that the simulated camera in another process sees the same part
 (:func:`monoguide.drivers.sim.robot_motion.follow_truth`).
 
@@ -39,6 +41,13 @@ class PartSupply:
         self.T_cf_b = np.asarray(supply["T_cf_b"], dtype=float)
         self.T_cf_w0 = np.asarray(supply["T_cf_w0"], dtype=float)
         self.centre_w = np.asarray(supply["centre_w"], dtype=float)
+        self.types = {int(t["job"]): t for t in supply.get("types", [])}  # type: ignore[attr-defined]
+        self.sequence = tuple(int(j) for j in supply.get("sequence", [1]))  # type: ignore[attr-defined]
+        if bad := [j for j in self.sequence if self.types and j not in self.types]:
+            raise ValueError(f"part types {bad}: not among the cell's ({sorted(self.types)})")
+        self.job = self.sequence[0]  # the type of the part in the cell
+        self.T_b_w0_type = None if not self.types else np.asarray(self.types[self.job]["T_b_w0"], dtype=float)
+        self.T_b_g0_type = None if not self.types else np.asarray(self.types[self.job]["T_b_g0"], dtype=float)
         self.translation_mm = tuple(float(v) for v in supply["translation_mm"])  # type: ignore[attr-defined]
         self.rotation_deg = tuple(float(v) for v in supply["rotation_deg"])  # type: ignore[attr-defined]
         self.T_b_w0 = compose(invert(self.T_cf_b), self.T_cf_w0)
@@ -62,14 +71,32 @@ class PartSupply:
         """The current part in the robot base frame."""
         return compose(invert(self.T_cf_b), self.T_cf_w)
 
+    @property
+    def next_job(self) -> int:
+        """The type of the part that arrives next."""
+        return self.sequence[self.part % len(self.sequence)]
+
+    def starts_cycle(self, pose_number: int) -> bool:
+        """A request of this pose brings the next part: the first measuring pose of its type."""
+        first = self.types[self.next_job]["first_pose"] if self.types else 1
+        return pose_number == first
+
     def arrive(self) -> np.ndarray:
         """The current part leaves, the next one arrives; returns its true pose in the robot base frame."""
         self.close()
         self.part += 1
+        self.job = self.next_job if self.types else self.job
+        T_cf_w0, centre_w = self.T_cf_w0, self.centre_w
+        if self.types:
+            kind = self.types[self.job]
+            T_cf_w0, centre_w = np.asarray(kind["T_cf_w0"], dtype=float), np.asarray(kind["centre_w"], dtype=float)
+            self.T_b_w0_type = np.asarray(kind["T_b_w0"], dtype=float)
+            self.T_b_g0_type = np.asarray(kind["T_b_g0"], dtype=float)
+        self.T_b_w0 = compose(invert(self.T_cf_b), T_cf_w0)
         rng = np.random.default_rng([self.seed, PART_STREAM, self.part])
-        self.T_cf_w = deviated_part(rng, self.T_cf_w0, self.centre_w, self.translation_mm, self.rotation_deg)
+        self.T_cf_w = deviated_part(rng, T_cf_w0, centre_w, self.translation_mm, self.rotation_deg)
         self._logged = False
-        log.info("part %d arrives", self.part)
+        log.info("part %d (type %d) arrives", self.part, self.job)
         return self.T_b_w
 
     def offset_applied(self, part: int, D_b: np.ndarray, grasp_error_mm: float, grasp_error_deg: float) -> None:
@@ -89,6 +116,7 @@ class PartSupply:
             return
         line = {
             "part": self.part,
+            "part_type": self.job,
             "T_cf_w": self.T_cf_w.tolist(),
             "offset_ideal": list(T_to_kuka_frame(compose(self.T_b_w, invert(self.T_b_w0)))),
             "offset_written": None if D_b is None else list(T_to_kuka_frame(D_b)),

@@ -115,7 +115,7 @@ class LinePlc:
     server: PlcServer
     timing: LineTiming = field(default_factory=LineTiming)
     word_order: WordOrder = "big"
-    job: int = 1
+    jobs: tuple[int, ...] = (1,)  # the job of each part, in turn (the part types the line brings)
     fault: str = "none"
     report: Callable[[dict[str, object]], None] = lambda record: None
     parts: int = 0
@@ -152,8 +152,9 @@ class LinePlc:
         """One part through the handshake; returns (and reports) what the line saw."""
         self.parts += 1
         tag = wrap_uint16(1000 + self.parts)
-        record: dict[str, object] = {"part": self.parts, "job": self.job, "part_tag": tag}
-        await self._set(0, job=self.job, part_tag=tag)
+        job = self.jobs[(self.parts - 1) % len(self.jobs)]
+        record: dict[str, object] = {"part": self.parts, "job": job, "part_tag": tag}
+        await self._set(0, job=job, part_tag=tag)
         if not await self._wait_status(lambda s: Status.READY in s and not s & (Status.DONE | Status.FAULT)):
             return self._finish(record, "no READY")
         await self._set(Control.TRIGGER)
@@ -243,7 +244,7 @@ async def _serve(args: argparse.Namespace) -> None:
     server = PlcServer(args.host, args.port, args.unit, args.base)
     await server.start()
     loop = asyncio.get_running_loop()
-    line = LinePlc(server, LineTiming(args.part_interval, args.heartbeat_period), args.word_order, args.job,
+    line = LinePlc(server, LineTiming(args.part_interval, args.heartbeat_period), args.word_order, args.jobs,
                    args.fault, lambda record: print(json.dumps(record), flush=True), grasp_wait_s=args.grasp_wait,
                    go=lambda part: print(f"{GRASP_GO} {json.dumps(part)}", flush=True))
 
@@ -282,6 +283,16 @@ def _command(line: LinePlc, text: str) -> None:
         print(f"error: {exc}", file=sys.stderr, flush=True)
 
 
+def _jobs(text: str) -> tuple[int, ...]:
+    try:
+        jobs = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected job numbers separated by commas, e.g. 1,2,2") from None
+    if not jobs or not all(1 <= j <= 65535 for j in jobs):
+        raise argparse.ArgumentTypeError(f"{text!r}: job numbers run from 1 to 65535")
+    return jobs
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m monoguide.drivers.sim.plc", description=__doc__.split("\n")[0])
     parser.add_argument("--host", default="127.0.0.1")
@@ -289,7 +300,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--unit", type=int, default=1)
     parser.add_argument("--base", type=int, default=0)
     parser.add_argument("--word-order", choices=("big", "little"), default="big")
-    parser.add_argument("--job", type=int, default=1)
+    parser.add_argument("--jobs", type=_jobs, default=(1,), help="the job of each part, in turn (e.g. 1,2,2)")
     parser.add_argument("--fault", choices=FAULTS, default="none")
     parser.add_argument("--part-interval", type=float, default=0.2)
     parser.add_argument("--heartbeat-period", type=float, default=0.5)

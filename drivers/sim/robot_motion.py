@@ -247,7 +247,8 @@ class SimRobotProgram:
             "held_sequence": self.held_sequence,
             "offset_valid": self.offset_valid,
             "T_b_f": self.T_b_f.tolist(),
-            **({"T_cf_w": self.supply.T_cf_w.tolist()} if self.supply is not None else {}),
+            **({"T_cf_w": self.supply.T_cf_w.tolist(), "part_type": self.supply.job}
+               if self.supply is not None else {}),
             "stops": {str(k): T.tolist() for k, T in self.stops.items()},
             "T_b_f_reported": self.T_b_f_reported.tolist(),
             "stops_reported": {str(k): T.tolist() for k, T in self.stops_reported.items()},
@@ -347,8 +348,11 @@ class SimRobotProgram:
                 or CALIBRATION_POSE_BASE < number <= CALIBRATION_POSE_BASE + len(self.spec.T_b_f_calibration)):
             self._rule("bad-pose", seq)
             return
-        if number == 1 and self.supply is not None:  # a cycle starts: the next part arrives
-            self.spec = dataclasses.replace(self.spec, T_b_w=self.supply.arrive(), part=self.supply.part)
+        if self.supply is not None and self.supply.starts_cycle(number):  # a cycle starts: the next part arrives
+            T_b_w = self.supply.arrive()
+            kind = {} if self.supply.T_b_g0_type is None else {"T_b_w0": self.supply.T_b_w0_type,
+                                                                "T_b_g0": self.supply.T_b_g0_type}
+            self.spec = dataclasses.replace(self.spec, T_b_w=T_b_w, part=self.supply.part, **kind)
         self.in_position = 0
         self._rule("goto", seq)
         self.state = "MOVING"

@@ -81,6 +81,8 @@ def follow_truth(cell: SimCell, path: Path) -> int:
     supply presents (``T_cf_w``), when it has one. Returns that pose number (0: moving)."""
     truth = read_truth(path)
     if truth.get("T_cf_w") is not None:
+        if truth.get("part_type") is not None and cell.spec.part_types:
+            cell.set_part_type(int(truth["part_type"]))
         cell.set_part_pose(np.asarray(truth["T_cf_w"], dtype=float))
     stops = {int(k): np.asarray(T, dtype=float) for k, T in truth["stops"].items()}  # type: ignore[union-attr]
     current = int(truth["in_position"])  # type: ignore[call-overload]

@@ -63,7 +63,7 @@ def test_sim_cell_holds_the_papers_cell() -> None:
     assert len(cfg.measuring_poses) == 4 and [p.points for p in cfg.measuring_poses] == [(0,), (1,), (2,), (3,)]
     assert cfg.camera.backend == "sim" and cfg.tracker is not None and cfg.tracker.backend == "sim"
     assert cfg.sim is not None and cfg.sim.repeatability_mm == 0.05 and cfg.sim.tracker_noise_mm == 0.025
-    assert len(cfg.sim.targets) == 4 and set(cfg.sim.benchmarks) == {"B1", "B2", "B3"}
+    assert len(cfg.sim.targets) == len(cfg.cell_poses) == 7 and set(cfg.sim.benchmarks) == {"B1", "B2", "B3"}
 
 
 @pytest.mark.parametrize("path", sorted(CONFIG_DIR.glob("*.toml")), ids=lambda p: p.name)

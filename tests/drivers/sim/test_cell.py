@@ -50,7 +50,7 @@ def test_robot_stops_within_its_repeatability() -> None:
     for i in range(cell.n_measuring_poses):
         cell.move_to_measuring_pose(i)
         T_cf_f = SPEC.T_cf_b @ cell.actual_flange_pose(i)
-        T_cf_f_taught = CONFIG.measuring_poses[i].T_cf_si @ invert(SPEC.T_f_c)
+        T_cf_f_taught = CONFIG.cell_poses[i].T_cf_si @ invert(SPEC.T_f_c)
         errors.append(pose_difference(T_cf_f, T_cf_f_taught))
     deg, mm = np.array(errors).T
     assert np.all(deg < 6 * np.sqrt(3) * SPEC.repeatability_deg) and np.all(deg > 0)

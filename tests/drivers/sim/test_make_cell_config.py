@@ -114,7 +114,7 @@ def test_every_hole_stays_in_view_at_every_corner_of_the_deviation_range() -> No
     worst: dict[int, tuple[float, np.ndarray]] = {}
     for T_cf_w in _corner_parts():
         cell.set_part_pose(T_cf_w)
-        for i in range(cell.n_measuring_poses):
+        for i in range(len(CONFIG.measuring_poses)):  # the roof's (job 1); the hood's: test_hood_views
             cell.move_to_measuring_pose(i)
             margin, depth = _margin_and_depth(cell, i)
             assert margin >= 99.0, f"S{i + 1}: hole {margin:.1f} px from the border"  # repeatability: < 1 px
@@ -138,7 +138,7 @@ def test_the_old_straight_down_layout_would_have_lost_holes() -> None:
     margins = []
     for T_cf_w in _corner_parts():
         cell.set_part_pose(T_cf_w)
-        for i in range(cell.n_measuring_poses):
+        for i in range(len(CONFIG.measuring_poses)):  # the roof's (job 1); the hood's: test_hood_views
             cell.move_to_measuring_pose(i)
             margins.append(_margin_and_depth(cell, i)[0])
     assert min(margins) < -300.0
@@ -155,3 +155,35 @@ def test_the_simulated_camera_has_the_cells_lens() -> None:
         assert circle == pytest.approx(2.0, abs=1e-3)
     own = SimCamera(SimCell(SPEC), RenderSettings(focus_distance_mm=450.0, aperture_mm=3.0))
     assert own.render.focus_distance_mm == 450.0 and own.render.aperture_mm == 3.0  # a given lens is kept
+
+
+def test_the_hood_views_see_both_their_holes_at_every_corner_of_the_deviation_range() -> None:
+    """Job 2: each of its three poses keeps both of its holes inside the image with the layout's margin and inside
+    the depth of field, at every corner of the envelope (rendered truth: the SimCell's projection of the hood)."""
+    from monoguide.drivers.sim.make_cell_config import HOOD_POINTS_W, HOOD_VIEWS, LAYOUT
+
+    hood = CONFIG.for_job(2)
+    assert [p.points for p in hood.measuring_poses] == [tuple(v) for v in HOOD_VIEWS]
+    cell = SimCell(SPEC)
+    cell.set_part_type(2)
+    assert np.allclose(cell.spec.points_w, HOOD_POINTS_W)
+    centre = HOOD_POINTS_W.mean(axis=0)
+    limits = np.concatenate([np.radians(SPEC.deviation_rotation_deg), SPEC.deviation_translation_mm])
+    cam = SPEC.camera
+    worst_margin, depths = np.inf, []
+    for corner in itertools.product((-1.0, 1.0), repeat=6):
+        s = np.array(corner)
+        cell.set_part_pose(compose(hood.reference.T_cf_w0, part_deviation(s[:3] * limits[:3], s[3:] * limits[3:],
+                                                                            centre)))
+        for pose in hood.measuring_poses:
+            cell.move_to_measuring_pose(pose.number - 1)
+            T_c_w = cell.T_c_w_true(pose.number - 1)
+            rvec, _ = cv2.Rodrigues(T_c_w[:3, :3])
+            for j in pose.points:
+                px, _ = cv2.projectPoints(HOOD_POINTS_W[j].reshape(1, 1, 3), rvec, T_c_w[:3, 3], cam.K,
+                                          cam.dist_coeffs)
+                u, v = px.reshape(2)
+                worst_margin = min(worst_margin, u + 0.5, cam.width - 0.5 - u, v + 0.5, cam.height - 0.5 - v)
+                depths.append(float((T_c_w[:3, :3] @ HOOD_POINTS_W[j] + T_c_w[:3, 3])[2]))
+    assert worst_margin >= LAYOUT.margin_px * 0.9  # the robot's repeatability moves the image a little
+    assert LAYOUT.depth_of_field_mm[0] <= min(depths) and max(depths) <= LAYOUT.depth_of_field_mm[1]
