@@ -40,6 +40,7 @@ from monoguide.daemon.errors import (
     JournalEntryInvalid,
     JournalEntryMissing,
     JournalError,
+    JournalNotADatabase,
     JournalReplaced,
     JournalSchemaUnknown,
 )
@@ -332,6 +333,8 @@ class Journal:
                 if db is not None:
                     db.close()
                     db = None
+                if isinstance(exc, JournalNotADatabase):  # the file itself: no other open mode can read it
+                    raise
                 if query.endswith("immutable=1"):
                     raise JournalError(f"journal {self.path}: cannot open read-only: {exc}") from exc
         assert db is not None
