@@ -71,7 +71,7 @@ ROUND_TRIP_TOL = 1e-9  # what loads back must equal what was calibrated to this 
 # what the caller may give in ``provenance`` (``previous`` is the writer's own)
 PROVENANCE_KEYS = ("date", "session", "wizard_version", "sim", "devices")
 _TABLES = {"camera.intrinsics": ("camera", "intrinsics"), "camera": ("camera",), "reference": ("reference",),
-           "measuring_poses": ("measuring_poses",)}
+           "measuring_poses": ("measuring_poses",), "parts": ("parts",)}
 
 
 # --- public --------------------------------------------------------------------------------------
@@ -153,7 +153,15 @@ def _calibrated_values(steps: dict[str, dict[str, Any]], raw: dict[str, Any], pa
     if "base" in steps:
         out[("reference", -1, "T_cf_b")] = ("matrix", _rigid(steps["base"].get("T_cf_b"), "base: T_cf_b"))
     if "part" in steps:
-        out[("reference", -1, "T_cf_w0")] = ("matrix", _rigid(steps["part"].get("T_cf_w0"), "part: T_cf_w0"))
+        T_cf_w0 = ("matrix", _rigid(steps["part"].get("T_cf_w0"), "part: T_cf_w0"))
+        if raw.get("parts"):  # a cell of part types: the reference is the measured part type's ([[parts]] job)
+            jobs = [e.get("job") if isinstance(e, dict) else None for e in raw["parts"]]
+            job = steps["part"].get("job", jobs[0])
+            if job not in jobs:
+                raise CalibrationValueInvalid(f"part: job {job!r} is not a part type of {path} (its jobs: {jobs})")
+            out[("parts", jobs.index(job), "T_cf_w0")] = T_cf_w0
+        else:
+            out[("reference", -1, "T_cf_w0")] = T_cf_w0
     if "sfi" in steps:
         sfi = steps["sfi"]
         out[("camera", -1, "T_f_c")] = ("matrix", _rigid(sfi.get("T_f_c"), "sfi: T_f_c"))
@@ -197,8 +205,10 @@ def _check_written(tmp: Path, values: dict[tuple[str, int, str], tuple[str, Any]
             got = config.camera.T_f_c
         elif table == "reference":
             got = getattr(config.reference, key)
+        elif table == "parts":
+            got = config.parts[index].T_cf_w0
         else:
-            got = config.measuring_poses[index].T_cf_si
+            got = config.cell_poses[index].T_cf_si
         if got is None or not np.allclose(np.asarray(got, dtype=float), value, rtol=0.0, atol=ROUND_TRIP_TOL):
             raise CalibrationFileRefused(f"{path}: [{table}] {key}: the rewritten file loads {got!r}, not the "
                                          f"calibrated value; nothing replaced")

@@ -44,7 +44,8 @@ def run_part(rig: CalibrationRig, earlier: dict[str, dict[str, Any]]) -> dict[st
     fit = measure_part_frame(rig, T_cf_tracker, "reference part")
     residuals = {n: float(r) for n, r in zip(fit.names, fit.residuals_mm, strict=True)}
     rig.progress(f"part frame: T_cf_w0 from {len(residuals)} holes, RMS {fit.rms_mm:.4f} mm")
-    return {"T_cf_w0": fit.T.tolist(), "residuals_mm": residuals, "rms_mm": fit.rms_mm}
+    job = {"job": rig.config.job} if len(rig.config.parts) > 1 else {}  # whose reference: [[parts]] job
+    return {"T_cf_w0": fit.T.tolist(), "residuals_mm": residuals, "rms_mm": fit.rms_mm, **job}
 
 
 def run_sfi(rig: CalibrationRig, earlier: dict[str, dict[str, Any]]) -> dict[str, Any]:

@@ -84,8 +84,8 @@ class PartSupply:
     def arrive(self) -> np.ndarray:
         """The current part leaves, the next one arrives; returns its true pose in the robot base frame."""
         self.close()
-        self.part += 1
         self.job = self.next_job if self.types else self.job
+        self.part += 1
         T_cf_w0, centre_w = self.T_cf_w0, self.centre_w
         if self.types:
             kind = self.types[self.job]

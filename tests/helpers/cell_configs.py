@@ -7,7 +7,7 @@ import re
 from collections.abc import Iterable
 from pathlib import Path
 
-from helpers.repository import SIM_CELL
+from helpers.repository import SIM_CELL, SINGLE_PART_SIM_CELL
 from monoguide.daemon.config import load_cell_config
 from monoguide.solver.frames import compose
 from monoguide.solver.planning import look_at_poses
@@ -54,8 +54,8 @@ def plc_cell_config(tmp_path: Path, host: str, port: int, heartbeat_timeout_s: f
 def straight_down_cell(tmp_path: Path, extra: str = "") -> Path:
     """The simulated cell with the pre-issue-8 measuring poses (straight down from 650 mm, holes a quarter
     from the edge), written by hand; ``extra`` replaces the [layout] table's depth of field, say."""
-    text = SIM_CELL.read_text()
-    config = load_cell_config(SIM_CELL)
+    text = SINGLE_PART_SIM_CELL.read_text()  # its poses name the holes they see
+    config = load_cell_config(SINGLE_PART_SIM_CELL)
     poses = [compose(config.reference.T_cf_w0, T) for T in
              look_at_poses(config.part.points_w, config.camera.intrinsics, 650.0)]
     start, end = text.index("[[measuring_poses]]"), text.index("[tracker]")

@@ -25,7 +25,7 @@ from monoguide.drivers.errors import ConfigError
 ROOT = Path(__file__).parents[3]
 SHIPPED_SIM_CELL = ROOT / "config" / "sim-cell.toml"  # two part types ([[parts]])
 # the simulated cell in the single-part form (the shipped file before it had part types): the text the mutations edit
-SIM_CELL = Path(__file__).parent / "data" / "sim-cell-single-part.toml"
+SIM_CELL = ROOT / "tests" / "helpers" / "data" / "sim-cell-single-part.toml"
 TEMPLATE = ROOT / "config" / "cell-template.toml"
 VIKY = ROOT / "config" / "viky-camera.toml"
 DOC = ROOT / "docs" / "cell-config.md"
