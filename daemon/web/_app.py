@@ -192,18 +192,18 @@ class _Pages:
 
 
 def _when(seconds: float | None) -> str:
-    if seconds is None:
+    if seconds is None or isinstance(seconds, jinja2.Undefined):
         return "-"
     return datetime.fromtimestamp(seconds).strftime("%Y-%m-%d %H:%M:%S")
 
 
 def _number(value: Any, digits: int = 3) -> str:
-    if value is None:
+    if value is None or isinstance(value, jinja2.Undefined):
         return "-"
     return f"{float(value):.{digits}f}"
 
 
 def _xyzabc(values: Any) -> str:
-    if not values:
+    if not values or isinstance(values, jinja2.Undefined):
         return "-"
     return " ".join(f"{float(v):.2f}" for v in values)

@@ -74,6 +74,7 @@ def screen_point(driver: Any, image: Any, width: int, height: int, u: float, v: 
     """Where image pixel (u, v) of an ``<image>`` of ``width`` x ``height`` px lies on the screen (viewport px)."""
     x, y = driver.execute_script("""
         const r = arguments[0].getBoundingClientRect();
-        return [r.left + (arguments[1] + 0.5) / arguments[3] * r.width, r.top + (arguments[2] + 0.5) / arguments[4] * r.height];
+        return [r.left + (arguments[1] + 0.5) / arguments[3] * r.width,
+                r.top + (arguments[2] + 0.5) / arguments[4] * r.height];
     """, image, u, v, width, height)
     return round(x), round(y)

@@ -17,9 +17,9 @@ from typing import Any
 
 import cv2
 import numpy as np
+
 from helpers.repository import EXAMPLE_RECORD
 from helpers.sim_processes import stop
-
 from monoguide.daemon.service import CycleEntry, Journal
 from monoguide.solver.errors import HoleNotFound
 from monoguide.solver.record import solve_record

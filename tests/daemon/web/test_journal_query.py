@@ -45,8 +45,10 @@ def _numbers(rows: list) -> list[int]:
     (CycleQuery(limit=500), list(range(N, 0, -1))),
     (CycleQuery(status="error", limit=500), [n for n in range(N, 0, -1) if _seeded(n)[0]]),
     (CycleQuery(status="ok", limit=500), [n for n in range(N, 0, -1) if not _seeded(n)[0]]),
-    (CycleQuery(error_code="DEVICE_TIMEOUT", limit=500), [n for n in range(N, 0, -1) if _seeded(n)[0] == "DEVICE_TIMEOUT"]),
-    (CycleQuery(job=2, status="error", limit=500), [n for n in range(N, 0, -1) if _seeded(n)[1] == 2 and _seeded(n)[0]]),
+    (CycleQuery(error_code="DEVICE_TIMEOUT", limit=500),
+     [n for n in range(N, 0, -1) if _seeded(n)[0] == "DEVICE_TIMEOUT"]),
+    (CycleQuery(job=2, status="error", limit=500),
+     [n for n in range(N, 0, -1) if _seeded(n)[1] == 2 and _seeded(n)[0]]),
     (CycleQuery(finished_from=T0 + 10 * 50, finished_to=T0 + 10 * 60, limit=500), list(range(59, 49, -1))),
     (CycleQuery(error_code="NO_SUCH_CODE"), []),
 ])
