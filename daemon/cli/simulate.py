@@ -26,6 +26,7 @@ from rich.progress import Progress as RichProgress
 from monoguide.daemon.cli._console import say, stderr_console, stdout_console
 from monoguide.daemon.cli._policy import EXIT_INTERRUPTED, fail
 from monoguide.daemon.cli._policy import report as report_error
+from monoguide.daemon.cli._web_child import hold_until_interrupted, start_web_page
 from monoguide.daemon.errors import SimulateError
 from monoguide.daemon.simulate import (
     Progress,
@@ -77,6 +78,10 @@ def simulate(
     work_dir: Annotated[
         Path | None, typer.Option("--work-dir", help="keep the run's config, journal, truth log and logs here")
     ] = None,
+    jobs: Annotated[str | None, typer.Option(
+        "--jobs", help="the part types the line brings, in turn, e.g. 1,2 (default: every job of the config)")] = None,
+    web: Annotated[str | None, typer.Option(
+        "--web", help="HOST:PORT: the operator page on the run (monoguide web), kept up after it until Ctrl-C")] = None,
 ) -> None:
     """Run the simulated cell and the service for N cycles; report grasp error, time split, errors, memory."""
     err = stderr_console()
@@ -94,7 +99,8 @@ def simulate(
     work = Path(work_dir) if work_dir is not None else Path(tempfile.mkdtemp(prefix="monoguide-simulate-"))
     keep = work_dir is not None
     options = RunOptions(config or default_config(), work, cycles, seed, robot, perfect_robot, faults, host, names,
-                         calibration)
+                         calibration, _jobs(jobs))
+    page = start_web_page(web, work / "state", options.config)  # --web: the page, until the command ends
     try:
         with _progress(err, cycles) as progress:
             result = run_simulation(options, progress)
@@ -124,10 +130,20 @@ def simulate(
     if summary["offsets_written_on_failure"]:
         fail(SimulateError(f"{summary['offsets_written_on_failure']} offsets were written for failed cycles; "
                            f"files kept in {work}"))
+    hold_until_interrupted(page)
     _cleanup(work, keep)
 
 
 # --- private ------------------------------------------------------------------------------------
+
+
+def _jobs(text: str | None) -> tuple[int, ...]:
+    if text is None:
+        return ()
+    try:
+        return tuple(int(v) for v in text.split(","))
+    except ValueError:
+        fail(ConfigError(f"--jobs {text!r}: expected job numbers separated by commas, e.g. 1,2"))
 
 
 def _summary(result: RunResult, perfect_robot: bool) -> tuple[list[dict[str, Any]], dict[str, Any]]:
@@ -136,7 +152,8 @@ def _summary(result: RunResult, perfect_robot: bool) -> tuple[list[dict[str, Any
     repeatability = _repeatability(result)
     predicted = _prediction(result, repeatability)
     summary = summarize(cycles, result.truth, result.journal_rows, result.faults, result.rss,
-                        Targets.for_run(perfect_robot, predicted["sigma_mm"], predicted["sigma_deg"]),
+                        Targets.for_run(perfect_robot, predicted["sigma_mm"], predicted["sigma_deg"],
+                                        predicted.get("variances_mm2"), predicted.get("variances_deg2")),
                         result.logged_codes)
     summary.update({"seed": _seed(result.cell.data), "robot": result.cell.data["robot"]["backend"],
                     "perfect_robot": perfect_robot, **repeatability, "calibration": result.cell.calibration,

@@ -65,6 +65,7 @@ class DerivedCell:
     data: dict[str, Any]
     service_config: Path | None = None  # the service's config when it differs (--calibration); else ``config``
     calibration: dict[str, Any] | None = None  # {"path": CELL.toml, "values": [the keys taken from it]}
+    jobs: tuple[int, ...] = (1,)  # the part types the line brings, in turn
 
     @property
     def service(self) -> Path:
@@ -82,7 +83,7 @@ class DerivedCell:
 
 def derive_config(source: Path, work_dir: Path, *, seed: int | None = None, robot: str | None = None,
                   perfect_robot: bool = False, host: str | None = None, faults: bool = False,
-                  calibration: Path | None = None) -> DerivedCell:
+                  calibration: Path | None = None, jobs: tuple[int, ...] = ()) -> DerivedCell:
     """Write ``work_dir/cell.toml``, the run's config derived from ``source`` (and ``work_dir/service.toml``
     with ``calibration``); see the module's doc."""
     data = _read_toml(source, "--config")
@@ -120,7 +121,8 @@ def derive_config(source: Path, work_dir: Path, *, seed: int | None = None, robo
                 data[section][key] = min(float(data[section].get(key, value)), value)
     config = work_dir / "cell.toml"
     write_atomic(config, dumps_toml(data, f"derived by `monoguide simulate` from {Path(source).resolve()}"))
-    cell = DerivedCell(config, work_dir / "state", work_dir / "truth.jsonl", sim_state, host, data)
+    cell = DerivedCell(config, work_dir / "state", work_dir / "truth.jsonl", sim_state, host, data,
+                       jobs=_jobs(load_cell_config(config), jobs))
     if calibration is None:
         return cell
     service_data, taken = with_calibration(data, _read_toml(calibration, "--calibration"), calibration)
@@ -152,6 +154,11 @@ def with_calibration(truth: dict[str, Any], calibrated: dict[str, Any], path: Pa
         if value is not None:
             data.setdefault(section, {})[key] = value
             taken.append(f"{section}.{key}")
+    parts = {p.get("job"): p for p in data.get("parts", [])}
+    for part in calibrated.get("parts", []):
+        if "T_cf_w0" in part and part.get("job") in parts:
+            parts[part["job"]]["T_cf_w0"] = part["T_cf_w0"]
+            taken.append(f"parts.{part['job']}.T_cf_w0")
     poses = {p.get("name"): p for p in data.get("measuring_poses", [])}
     for pose in calibrated.get("measuring_poses", []):
         name = pose.get("name")
@@ -169,7 +176,8 @@ def with_calibration(truth: dict[str, Any], calibrated: dict[str, Any], path: Pa
 
 
 def predicted_grasp_sigma(config: Path, repeatability_mm: float, repeatability_deg: float) -> dict[str, float | None]:
-    """The layout's predicted sigma of the part pose at the grasp point (``sigma_mm``, ``sigma_deg``) for the
+    """The layout's predicted sigma of the part pose at the grasp point (``sigma_mm``, ``sigma_deg``; the principal
+    variances of its covariance, ``variances_mm2``, ``variances_deg2``, the shape the grasp target needs) for the
     measuring poses of ``config`` (``[layout]`` sigma_px), with the robot's repeatability ``repeatability_mm`` /
     ``repeatability_deg`` per axis at the flange, carried to the camera through ``[camera] T_f_c`` (what
     ``monoguide plan --layout`` prints as "with the robot's repeatability"); None when the layout leaves the pose
@@ -181,7 +189,16 @@ def predicted_grasp_sigma(config: Path, repeatability_mm: float, repeatability_d
     sigmas = assessed.sigmas_with_repeatability if repeatability_mm or repeatability_deg else assessed.sigmas
     if sigmas is None:
         return {"sigma_mm": None, "sigma_deg": None, "sigma_px": request.sigma_px}
-    return {"sigma_mm": sigmas.sigma_trans_mm, "sigma_deg": sigmas.sigma_rot_deg, "sigma_px": request.sigma_px}
+    return {"sigma_mm": sigmas.sigma_trans_mm, "sigma_deg": sigmas.sigma_rot_deg, "sigma_px": request.sigma_px,
+            "variances_mm2": sigmas.grasp_variances_mm2, "variances_deg2": sigmas.rotation_variances_deg2}
+
+
+def _jobs(config: Any, asked: tuple[int, ...]) -> tuple[int, ...]:
+    """``--jobs``: the part types the line brings in turn, each one of the config's; default all of them."""
+    if bad := [job for job in asked if job not in config.jobs]:
+        raise ConfigError(f"--jobs {','.join(map(str, asked))}: {bad} not among the jobs of {config.path} "
+                          f"({', '.join(p.describe() for p in config.parts)})")
+    return asked or config.jobs
 
 
 def _read_toml(path: Path, option: str) -> dict[str, Any]:

@@ -26,11 +26,16 @@ class PoseSigmas:
     sigma_rot_deg   : rotation, deg
     sigma_trans_mm  : position of the grasp point, mm (the point the robot's offset must get right)
     sigma_origin_mm : position of the part frame's origin, mm (the paper's ``t`` of ``T_s1_w``)
+    grasp_variances_mm2, rotation_variances_deg2 : (3,) the principal variances (eigenvalues) of the grasp
+                      point's and the rotation's covariance, ascending: their sums are the squared sigmas, their
+                      spread the shape of the error (what the RMS of a few grasps scatters by)
     """
 
     sigma_rot_deg: float
     sigma_trans_mm: float
     sigma_origin_mm: float
+    grasp_variances_mm2: tuple[float, float, float] | None = None
+    rotation_variances_deg2: tuple[float, float, float] | None = None
 
     def as_dict(self) -> dict[str, float]:
         return {
@@ -102,4 +107,12 @@ def pose_sigmas(covariance: np.ndarray, T_s1_w: np.ndarray, grasp_point_w: np.nd
         sigma_rot_deg=math.degrees(math.sqrt(max(float(np.trace(covariance[:3, :3])), 0.0))),
         sigma_trans_mm=math.sqrt(max(float(np.trace(grasp)), 0.0)),
         sigma_origin_mm=math.sqrt(max(float(np.trace(covariance[3:, 3:])), 0.0)),
+        grasp_variances_mm2=_principal_variances(grasp),
+        rotation_variances_deg2=_principal_variances(covariance[:3, :3] * math.degrees(1.0) ** 2),
     )
+
+
+def _principal_variances(covariance: np.ndarray) -> tuple[float, float, float]:
+    """The eigenvalues (3,) of a 3x3 covariance, ascending, rounding's negatives set to 0."""
+    a, b, c = (max(float(v), 0.0) for v in np.linalg.eigvalsh(0.5 * (covariance + covariance.T)))
+    return a, b, c
