@@ -53,6 +53,7 @@ class RunOptions:
     host: str | None = None
     fault_names: tuple[str, ...] = ()  # "device name" of FAULT_PLAN to inject (empty: every one)
     calibration: Path | None = None  # the service runs with this file's calibration values (the cell: config's)
+    jobs: tuple[int, ...] = ()  # the part types the line brings, in turn (empty: every job of the config in turn)
 
 
 @dataclass
@@ -89,14 +90,15 @@ def run_simulation(options: RunOptions, progress: Progress | None = None) -> Run
     started = time.monotonic()
     cell = derive_config(options.config, options.work_dir, seed=options.seed, robot=options.robot,
                          perfect_robot=options.perfect_robot, host=options.host, faults=options.faults,
-                         calibration=options.calibration)
+                         calibration=options.calibration, jobs=options.jobs)
     cell.state_dir.mkdir(parents=True, exist_ok=True)
     logs = options.work_dir.resolve()
     with _sigterm_interrupts(), Children() as children:
         progress.note(f"starting the simulated cell on {cell.host} (config {cell.config})")
         sim = children.start("simulated cell", [
             sys.executable, "-m", "monoguide.daemon.cli", "sim-cell", "--config", str(cell.config), "--truth-log",
-            str(cell.truth_log), "--parts", str(options.cycles)], logs / "sim-cell.log", commands=True)
+            str(cell.truth_log), "--parts", str(options.cycles), "--part-types", ",".join(map(str, cell.jobs))],
+            logs / "sim-cell.log", commands=True)
         _wait_listening(sim)
         # --cycles N: the service stops by itself after N cycles, as a line's test run would. With --faults a
         # part may end without a cycle (or with two), so the service runs until stopped after the last part.
