@@ -1,8 +1,10 @@
 """The simulated cell's part supply, run by the simulated robot controller (``docs/probe.md``).
 
 Every cycle starts with a new part: when the first measuring pose of the next part's type is requested (S1 for
-the roof), the part in the cell is replaced by part ``n + 1``, deviated from its type's reference within
-``[sim.deviation]`` by a draw seeded with ``([sim] seed, PART_STREAM, n + 1)`` — the same config gives the same
+the roof), the part in the cell is replaced by part ``n + 1``, deviated from its type's reference by a draw
+inside its envelope (:func:`monoguide.solver.envelope.draw_deviation`: the envelope's one definition, per axis
+and in total about the type's point ``about_w``; the limits ``[sim.deviation]``'s unless the type gives its
+own) seeded with ``([sim] seed, PART_STREAM, n + 1)`` — the same config gives the same
 parts in the same order, whatever else was drawn. The types come in the order of ``sim-cell --part-types``
 (default: the first part type only); a PLC that asks for another job than the part on the line gets a cell with
 the last part still in it. The controller applies offsets to it and scores them; its truth file carries the part's
@@ -22,10 +24,11 @@ import argparse
 import json
 import logging
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from monoguide.drivers.sim.cell import deviated_part
+from monoguide.solver.envelope import DeviationEnvelope, draw_deviation
 from monoguide.solver.frames import T_to_kuka_frame, compose, invert
 
 log = logging.getLogger("monoguide.sim.parts")
@@ -34,13 +37,18 @@ PART_STREAM = 0x50415254  # "PART": the supply's own random stream, apart from t
 
 
 class PartSupply:
-    """Presents seeded deviated parts and writes one truth-log line per part (``log_path``; None: no log)."""
+    """Presents seeded deviated parts and writes one truth-log line per part (``log_path``; None: no log).
 
-    def __init__(self, seed: int, supply: dict[str, object], T_b_g0: np.ndarray, log_path: Path | None) -> None:
+    ``supply`` (the spec file's ``part_supply``): ``T_cf_b``, ``T_cf_w0``, the envelope's point ``about_w`` (or
+    ``centre_w``, its older name), ``translation_mm``, ``rotation_deg`` (+- per axis), optionally ``total_mm``,
+    ``total_deg`` (default: the norms); each of ``types`` may give its own of these envelope keys.
+    """
+
+    def __init__(self, seed: int, supply: dict[str, Any], T_b_g0: np.ndarray, log_path: Path | None) -> None:
         self.seed = seed
         self.T_cf_b = np.asarray(supply["T_cf_b"], dtype=float)
         self.T_cf_w0 = np.asarray(supply["T_cf_w0"], dtype=float)
-        self.centre_w = np.asarray(supply["centre_w"], dtype=float)
+        self.supply = supply
         self.types = {int(t["job"]): t for t in supply.get("types", [])}  # type: ignore[attr-defined]
         self.sequence = tuple(int(j) for j in supply.get("sequence", [1]))  # type: ignore[attr-defined]
         if bad := [j for j in self.sequence if self.types and j not in self.types]:
@@ -48,8 +56,6 @@ class PartSupply:
         self.job = self.sequence[0]  # the type of the part in the cell
         self.T_b_w0_type = None if not self.types else np.asarray(self.types[self.job]["T_b_w0"], dtype=float)
         self.T_b_g0_type = None if not self.types else np.asarray(self.types[self.job]["T_b_g0"], dtype=float)
-        self.translation_mm = tuple(float(v) for v in supply["translation_mm"])  # type: ignore[attr-defined]
-        self.rotation_deg = tuple(float(v) for v in supply["rotation_deg"])  # type: ignore[attr-defined]
         self.T_b_w0 = compose(invert(self.T_cf_b), self.T_cf_w0)
         self.T_b_g0 = np.asarray(T_b_g0, dtype=float)
         self.log_path = log_path
@@ -86,15 +92,15 @@ class PartSupply:
         self.close()
         self.job = self.next_job if self.types else self.job
         self.part += 1
-        T_cf_w0, centre_w = self.T_cf_w0, self.centre_w
+        T_cf_w0, kind = self.T_cf_w0, self.supply
         if self.types:
             kind = self.types[self.job]
-            T_cf_w0, centre_w = np.asarray(kind["T_cf_w0"], dtype=float), np.asarray(kind["centre_w"], dtype=float)
+            T_cf_w0 = np.asarray(kind["T_cf_w0"], dtype=float)
             self.T_b_w0_type = np.asarray(kind["T_b_w0"], dtype=float)
             self.T_b_g0_type = np.asarray(kind["T_b_g0"], dtype=float)
         self.T_b_w0 = compose(invert(self.T_cf_b), T_cf_w0)
         rng = np.random.default_rng([self.seed, PART_STREAM, self.part])
-        self.T_cf_w = deviated_part(rng, T_cf_w0, centre_w, self.translation_mm, self.rotation_deg)
+        self.T_cf_w = compose(T_cf_w0, draw_deviation(rng, supply_envelope(kind, self.supply), np.zeros((1, 3))))
         self._logged = False
         log.info("part %d (type %d) arrives", self.part, self.job)
         return self.T_b_w
@@ -125,6 +131,19 @@ class PartSupply:
         }
         with self.log_path.open("a") as f:
             f.write(json.dumps(line) + "\n")
+
+
+def supply_envelope(kind: dict[str, Any], supply: dict[str, Any]) -> DeviationEnvelope:
+    """The envelope a part type ``kind`` is drawn inside: its own keys, else the supply's; its point given (the
+    supply does not know the part's holes)."""
+    def key(name: str, *older: str) -> Any:
+        return next((d[k] for d in (kind, supply) for k in (name, *older) if d.get(k) is not None), None)
+
+    about_w = key("about_w", "centre_w")
+    if about_w is None:
+        raise ValueError("part_supply: no about_w (the envelope's point in the part frame)")
+    return DeviationEnvelope(tuple(key("translation_mm")), tuple(key("rotation_deg")), tuple(about_w),
+                             key("total_mm"), key("total_deg"))
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
