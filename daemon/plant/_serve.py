@@ -12,6 +12,7 @@ import asyncio
 import contextlib
 import datetime
 import logging
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +28,7 @@ from monoguide.daemon.plant._settings import PlantSettings
 log = logging.getLogger(__name__)
 
 DEFAULT_PART_NAME = "part"
+SLOW_POLL_S = 1.0  # a poll slower than this is logged
 
 
 @dataclass(frozen=True)
@@ -72,13 +74,18 @@ async def serve_plant(config: Any, settings: PlantSettings, state_dir: Path, sto
     try:
         metrics_url = metrics.start(settings.metrics_host, settings.metrics_port)
         identity = await opcua.start()
-        newest, counts = view.start(settings.last_results)
+        # the journal is read in a worker thread: a read that waits on SQLite (a checkpoint of the service's WAL,
+        # a busy file) must never hold up the OPC UA server's loop and its clients' requests
+        newest, counts = await asyncio.to_thread(view.start, settings.last_results)
         metrics.seed(counts, newest)
         await opcua.seed(newest)
         if on_ready is not None:
             on_ready(PlantEndpoints(opcua.url, metrics_url, identity))
         while not stop.is_set():
-            reading = view.poll()
+            started = time.monotonic()
+            reading = await asyncio.to_thread(view.poll)
+            if time.monotonic() - started > SLOW_POLL_S:
+                log.warning("reading the state directory took %.1f s", time.monotonic() - started)
             await opcua.show(reading)
             metrics.show(reading)
             with contextlib.suppress(TimeoutError):

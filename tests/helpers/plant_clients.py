@@ -79,9 +79,15 @@ class EventLog:
 
     events: list[tuple[float, dict[str, Any]]] = field(default_factory=list)
     arrived: asyncio.Event = field(default_factory=asyncio.Event)
+    status_changes: list[Any] = field(default_factory=list)
 
     def event_notification(self, event: Any) -> None:
         self.events.append((time.time(), event.get_event_props_as_fields_dict()))
+        self.arrived.set()
+
+    def status_change_notification(self, status: Any) -> None:
+        """The server ended the subscription (BadTimeout: its lifetime ran out without a publish request)."""
+        self.status_changes.append(status)
         self.arrived.set()
 
     async def wait_for(self, count: int, timeout_s: float) -> None:
@@ -89,8 +95,9 @@ class EventLog:
         while len(self.events) < count:
             self.arrived.clear()
             left = deadline - time.monotonic()
-            if left <= 0:
-                raise TimeoutError(f"{len(self.events)} of {count} events after {timeout_s} s")
+            if left <= 0 or self.status_changes:
+                raise TimeoutError(f"{len(self.events)} of {count} events after {timeout_s} s (status changes: "
+                                   f"{self.status_changes})")
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self.arrived.wait(), left)
 

@@ -1,0 +1,246 @@
+"""The plant interfaces' figures (issue 22): result-event latency, the cycle's overhead with and without 20 OPC UA
+clients, the plant's memory over 10,000 cycles' events. Prints tables; asserts nothing.
+
+``cycles``: ``monoguide sim-cell`` (its PLC plays parts without end), ``monoguide run --cycles N`` and ``monoguide
+plant`` on one state directory, each its own process, and one asyncua client (Sign & Encrypt, a user) subscribed to
+the result events from the start. In blocks of ``--block`` cycles, 20 more clients (each its own session and
+subscription to the events and to the state) are connected and then disconnected again, alternately; a cycle counts
+for "with 20 clients" when it started after all 20 were connected and finished before the first left, for "without"
+when no extra client was connected during it. Latency: the event's arrival at the client minus the row's
+``finished_at`` (taken just before the journal's commit, so the commit's own fsync counts against the plant).
+
+``memory``: ``monoguide plant`` on a journal replayed by the real ``Journal`` (``--events`` rows committed at
+``--rate`` per second, each a realistic small row), one client subscribed counting the events; the plant's resident
+memory (``/proc/<pid>/status`` VmRSS) after every tenth of them.
+
+    .venv/bin/python benchmarks/bench_plant.py cycles --cycles 60 --block 10     # ~4 min
+    .venv/bin/python benchmarks/bench_plant.py memory --events 10000             # ~2 min
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).parents[1] / "tests"))
+
+from bench_cycle import cheaper_config
+from helpers.plant_cells import PASSWORD, USER, plant_file, seeded_entries
+from helpers.plant_clients import (
+    NAMESPACE,
+    client_identity,
+    connected,
+    start_plant,
+    subscribe_results,
+    trust,
+    value,
+)
+from helpers.sim_processes import keep_reading, start_sim_cell, stop
+
+from monoguide.daemon.service import Journal
+
+ROBOT_HOST, PLANT_HOST, PLANT_PORT = "127.0.84.10", "127.0.84.20", 48401
+EXTRA_CLIENTS = 20
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="what", required=True)
+    cycles = sub.add_parser("cycles")
+    cycles.add_argument("--cycles", type=int, default=60)
+    cycles.add_argument("--block", type=int, default=10)
+    cycles.add_argument("--config", type=Path, default=Path("config/sim-cell.toml"))
+    cycles.add_argument("--verbose", action="store_true", help="print the windows and each cycle's times")
+    memory = sub.add_parser("memory")
+    memory.add_argument("--events", type=int, default=10_000)
+    memory.add_argument("--rate", type=float, default=250.0)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory(prefix="bench-plant-") as tmp:
+        if args.what == "cycles":
+            asyncio.run(_cycles(Path(tmp), args.config, args.cycles, args.block))
+        else:
+            asyncio.run(_memory(Path(tmp), args.events, args.rate))
+
+
+# --- cycles: latency and overhead ---------------------------------------------------------------
+
+
+async def _cycles(tmp: Path, config_path: Path, cycles: int, block: int) -> None:
+    config = cheaper_config(config_path, tmp, 0.05, True, ROBOT_HOST)
+    state_dir, clients = _state_dir(tmp)
+    plant, line = start_plant(config, state_dir, plant_file(tmp / "plant.toml", PLANT_HOST, PLANT_PORT),
+                              tmp / "plant.log")
+    url = line.split()[2]
+    sim, _ = start_sim_cell(config)
+    keep_reading(sim)
+    windows: list[tuple[str, float, float]] = []  # (condition, from, to)
+    try:
+        watcher = await connected(url, clients[0], user=USER, password=PASSWORD)
+        log, _ = await subscribe_results(watcher)
+        service = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "monoguide.daemon.cli", "run", "--config", str(config), "--state-dir",
+            str(state_dir), "--cycles", str(cycles), stdout=asyncio.subprocess.DEVNULL,
+            stderr=asyncio.subprocess.DEVNULL)
+        condition_from, sessions = time.time(), []
+        while service.returncode is None:
+            wanted = len(log.events) // block % 2 == 1  # blocks without, with, without, ... the extra clients
+            if wanted != bool(sessions):
+                windows.append(("with" if sessions else "without", condition_from, time.time()))
+                if sessions:
+                    await _disconnect(sessions)
+                    sessions = []
+                else:
+                    connecting = time.monotonic()
+                    sessions = await _connect_many(url, clients[1:])
+                    print(f"{len(sessions)} clients connected and subscribed in {time.monotonic() - connecting:.1f} s",
+                          flush=True)
+                condition_from = time.time()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(service.wait(), 0.2)
+        windows.append(("with" if sessions else "without", condition_from, time.time()))
+        await _disconnect(sessions)
+        await log.wait_for(cycles, 30.0)
+        await watcher.disconnect()
+    finally:
+        stop(sim)
+        stop(plant)
+    with Journal(state_dir, read_only=True) as journal:
+        rows = {row.number: row for row in journal.last_cycles(cycles + 10)}
+    _print_cycles(log.events, rows, windows)
+
+
+async def _connect_many(url: str, identities: list[Any]) -> list[Any]:
+    sessions = []
+    for identity in identities:
+        client = await connected(url, identity, user=USER, password=PASSWORD)
+        await subscribe_results(client)
+        idx = await client.get_namespace_index(NAMESPACE)
+        from asyncua import ua
+
+        subscription = await client.create_subscription(100, _Ignored())
+        machine = client.get_node(ua.NodeId("VisionSystem.VisionStateMachine", idx))
+        await subscription.subscribe_data_change(await machine.get_child("0:CurrentState"))
+        sessions.append(client)
+    return sessions
+
+
+class _Ignored:
+    """A subscription handler that drops what it is sent (the extra clients only load the server)."""
+
+    def datachange_notification(self, *_: Any) -> None:
+        pass
+
+    def event_notification(self, *_: Any) -> None:
+        pass
+
+
+async def _disconnect(sessions: list[Any]) -> None:
+    for client in sessions:
+        await client.disconnect()
+
+
+def _print_cycles(events: list[tuple[float, dict[str, Any]]], rows: dict[int, Any],
+                  windows: list[tuple[str, float, float]]) -> None:
+    latency: dict[str, list[float]] = {"all": [], "without": [], "with": []}
+    overhead: dict[str, list[float]] = {"without": [], "with": []}
+    cycle_time: dict[str, list[float]] = {"without": [], "with": []}
+    for arrived, fields in events:
+        row = rows[value(fields, "ResultId")]
+        latency["all"].append(arrived - row.finished_at)
+        condition = next((c for c, start, end in windows if start <= row.started_at and arrived <= end), None)
+        if condition is None or row.status != "ok":
+            continue
+        latency[condition].append(arrived - row.finished_at)
+        overhead[condition].append(row.timings_s["overhead"])
+        cycle_time[condition].append(row.timings_s.get("cycle", float("nan")))
+    if "--verbose" in sys.argv:
+        print(windows)
+        print([(round(rows[value(f, "ResultId")].started_at, 1), round(a, 1)) for a, f in events])
+    every = sorted(latency["all"])
+    print(f"\nresult event latency (client arrival - journal row), {len(every)} cycles, ms")
+    print("| median | p90 | max | min |\n|---|---|---|---|")
+    print(f"| {_ms(statistics.median(every))} | {_ms(every[int(0.9 * (len(every) - 1))])} | {_ms(every[-1])} |"
+          f" {_ms(every[0])} |")
+    print("\nlatency distribution: " + ", ".join(f"<= {b} ms: {sum(1 for v in every if v * 1000 <= b)}"
+                                                 for b in (50, 100, 150, 200, 300, 500, 1000)))
+    print(f"\n| cycles' medians | without ({len(overhead['without'])} cycles) | with {EXTRA_CLIENTS} clients "
+          f"({len(overhead['with'])} cycles) | ratio |\n|---|---|---|---|")
+    for name, table in (("overhead ms", overhead), ("cycle (trigger -> DONE) ms", cycle_time),
+                        ("event latency ms", latency)):
+        if not table["without"] or not table["with"]:
+            print(f"| {name} | (no cycle) | (no cycle) | |")
+            continue
+        a, b = statistics.median(table["without"]), statistics.median(table["with"])
+        print(f"| {name} | {_ms(a)} | {_ms(b)} | {b / a:.3f} |")
+
+
+# --- memory over a replayed journal -------------------------------------------------------------
+
+
+async def _memory(tmp: Path, events: int, rate: float) -> None:
+    state_dir, clients = _state_dir(tmp, 1)
+    with Journal(state_dir) as journal:  # the service's file exists before the plant starts, as in a cell
+        journal.commit_cycle(seeded_entries(1, time.time())[0])
+    plant, line = start_plant(Path("config/sim-cell.toml"), state_dir,
+                              plant_file(tmp / "plant.toml", PLANT_HOST, PLANT_PORT + 10), tmp / "plant.log")
+    samples: list[tuple[int, float]] = []
+    try:
+        client = await connected(line.split()[2], clients[0], user=USER, password=PASSWORD)
+        log, _ = await subscribe_results(client)
+        samples.append((0, _rss_mb(plant.pid)))
+        entries = seeded_entries(100, time.time())
+        started = time.monotonic()
+        with Journal(state_dir) as journal:
+            for i in range(events):
+                # in a thread: the fsync of every commit must not hold up the client's event loop
+                await asyncio.to_thread(journal.commit_cycle, entries[i % len(entries)])
+                if (i + 1) % max(1, events // 10) == 0:
+                    await log.wait_for(i + 1, 60.0)
+                    samples.append((i + 1, _rss_mb(plant.pid)))
+                await asyncio.sleep(max(0.0, started + (i + 1) / rate - time.monotonic()))
+        await log.wait_for(events, 60.0)
+        await client.disconnect()
+    finally:
+        stop(plant)
+    print(f"\nplant memory over {events:,} replayed cycles ({len(log.events):,} events received by the client)")
+    print("| events | resident MB |\n|---|---|")
+    for n, mb in samples:
+        print(f"| {n:,} | {mb:.1f} |")
+    quarter = max(1, len(samples) // 4)
+    first = statistics.mean(m for _, m in samples[1:1 + quarter])
+    last = statistics.mean(m for _, m in samples[-quarter:])
+    print(f"\nlast quarter vs first quarter (after the first tenth): {100 * (last - first) / first:+.1f} %")
+
+
+# --- private ------------------------------------------------------------------------------------
+
+
+def _state_dir(tmp: Path, count: int = EXTRA_CLIENTS + 1) -> tuple[Path, list[Any]]:
+    state_dir = tmp / "state"
+    state_dir.mkdir()
+    clients = [client_identity(tmp / "clients", f"client-{i:02d}") for i in range(count)]
+    for identity in clients:
+        trust(identity, state_dir / "plant" / "trusted")
+    return state_dir, clients
+
+
+def _rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def _ms(seconds: float) -> str:
+    return f"{seconds * 1000:.1f}"
+
+
+if __name__ == "__main__":
+    main()
