@@ -6,5 +6,11 @@ cd "$(dirname "$0")/.."
 . scripts/venv.sh test
 .venv/bin/ruff check .
 .venv/bin/lint-imports
+# the operator page's browser tests drive Debian's chromium (apt-get install chromium chromium-driver; .ci/run does)
+if ! command -v chromium >/dev/null 2>&1 || ! command -v chromedriver >/dev/null 2>&1; then
+    echo "NOTE: chromium or chromedriver not installed: the browser tests (-m browser) are left out;" \
+         "apt-get install -y chromium chromium-driver to run them" >&2
+    set -- -m "not browser" "$@"
+fi
 # two workers, each test file on one of them (a file's tests share its loopback addresses and fixtures)
 exec .venv/bin/python -m pytest -n 2 --dist loadfile "$@"

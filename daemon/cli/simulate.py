@@ -26,6 +26,7 @@ from rich.progress import Progress as RichProgress
 from monoguide.daemon.cli._console import say, stderr_console, stdout_console
 from monoguide.daemon.cli._policy import EXIT_INTERRUPTED, fail
 from monoguide.daemon.cli._policy import report as report_error
+from monoguide.daemon.cli._web_child import hold_until_interrupted, start_web_page
 from monoguide.daemon.errors import SimulateError
 from monoguide.daemon.simulate import (
     Progress,
@@ -79,6 +80,8 @@ def simulate(
     ] = None,
     jobs: Annotated[str | None, typer.Option(
         "--jobs", help="the part types the line brings, in turn, e.g. 1,2 (default: every job of the config)")] = None,
+    web: Annotated[str | None, typer.Option(
+        "--web", help="HOST:PORT: the operator page on the run (monoguide web), kept up after it until Ctrl-C")] = None,
 ) -> None:
     """Run the simulated cell and the service for N cycles; report grasp error, time split, errors, memory."""
     err = stderr_console()
@@ -97,6 +100,7 @@ def simulate(
     keep = work_dir is not None
     options = RunOptions(config or default_config(), work, cycles, seed, robot, perfect_robot, faults, host, names,
                          calibration, _jobs(jobs))
+    page = start_web_page(web, work / "state", options.config)  # --web: the page, until the command ends
     try:
         with _progress(err, cycles) as progress:
             result = run_simulation(options, progress)
@@ -126,6 +130,7 @@ def simulate(
     if summary["offsets_written_on_failure"]:
         fail(SimulateError(f"{summary['offsets_written_on_failure']} offsets were written for failed cycles; "
                            f"files kept in {work}"))
+    hold_until_interrupted(page)
     _cleanup(work, keep)
 
 

@@ -35,13 +35,20 @@ class CycleQuery:
 
 
 def find_cycles(db: sqlite3.Connection, query: CycleQuery) -> list[JournalRow]:
-    """The cycles ``query`` asks for, newest first, at most ``query.limit`` (and :data:`MAX_PAGE`)."""
+    """The cycles ``query`` asks for, newest first, at most ``query.limit`` (and :data:`MAX_PAGE`).
+
+    Two steps: the page's numbers from the index alone (a window's rows are sorted by number as index entries,
+    not as 6 kB rows), then those rows by their key."""
     conditions, values = _conditions(query)
     window = query.finished_from is not None or query.finished_to is not None
     hint = " INDEXED BY cycle_finished" if window and _has_index(db, "cycle_finished") else ""
-    sql = (f"SELECT {_COLUMNS} FROM cycle{hint} WHERE {' AND '.join(conditions)}"
-           " ORDER BY number DESC LIMIT ?")
-    rows = db.execute(sql, (*values, max(1, min(query.limit, MAX_PAGE)))).fetchall()
+    numbers = [found[0] for found in db.execute(
+        f"SELECT number FROM cycle{hint} WHERE {' AND '.join(conditions)} ORDER BY number DESC LIMIT ?",
+        (*values, max(1, min(query.limit, MAX_PAGE)))).fetchall()]
+    if not numbers:
+        return []
+    rows = db.execute(f"SELECT {_COLUMNS} FROM cycle WHERE number IN ({', '.join('?' * len(numbers))})"
+                      " ORDER BY number DESC", numbers).fetchall()
     return [row_from(found) for found in rows]
 
 

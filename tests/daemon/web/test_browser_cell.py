@@ -114,5 +114,5 @@ def test_an_ok_cycles_centres_are_drawn_where_its_record_says(run: dict[str, Any
         mark = driver.find_element(By.CSS_SELECTOR, f"#view-{view + 1} svg.frame circle.centre")
         u, v = image_pixel_under(driver, mark, width, height)
         assert abs(u - u_true) <= 1.0 and abs(v - v_true) <= 1.0, (view, (u, v), (u_true, v_true))
-    save_screenshot(driver, run["shots"], "operator-cycle")
+    save_screenshot(driver, run["shots"], "operator-cycle", full_page=False)
     assert Path(run["shots"], "operator-cycle.png").stat().st_size > 10_000
