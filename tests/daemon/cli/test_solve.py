@@ -17,6 +17,7 @@ from typer.testing import CliRunner
 
 from monoguide.daemon.cli import app
 from monoguide.solver import frames
+from monoguide.solver.envelope import deviation_transform
 from monoguide.solver.synthetic import deviated_part, measurement_record, paper_roof_cell
 
 EXAMPLE = Path(__file__).parents[3] / "examples" / "example-record.json"
@@ -371,3 +372,22 @@ def test_false_alarm_rate_must_lie_between_zero_and_one(tmp_path, rate):
 def test_version():
     run = CliRunner().invoke(app, ["--version"])
     assert run.exit_code == 0 and run.stdout.strip() == f"monoguide {metadata.version('monoguide')}"
+
+
+# --- the default envelope (issue 19): the cell's, per axis about the holes' centroid ---------------------------
+
+
+@pytest.mark.parametrize(("shift_w", "refused"), [((45.0, -45.0, 0.0), None), ((0.0, 0.0, 50.6), "along z"),
+                                                   ((-50.6, 0.0, 0.0), "along x")])
+def test_solve_without_an_envelope_key_holds_the_part_to_50_mm_per_axis_with_the_norm_in_total(shift_w, refused):
+    """A part shifted (45, -45, 0) mm: 63.6 mm in total, inside ±50 mm per axis and the default total 86.6 mm
+    (the older default, 50 mm in total, refused it); 50.6 mm along one axis is refused naming it."""
+    centroid = CELL.points_w.mean(axis=0)
+    T_true = CELL.T_s1_w0 @ deviation_transform(np.zeros(3), np.array(shift_w), centroid)
+    record, _ = _synthetic_record(np.random.default_rng(5), "shifted", T_true=T_true)
+    assert "envelope" not in record
+    (result,) = _results(_solve("--json", "-", input=json.dumps(record)))
+    if refused is None:
+        _assert_solved(result, "shifted", T_true)
+    else:
+        assert result["error"]["code"] == "OFFSET_OUT_OF_ENVELOPE" and refused in result["error"]["message"]
