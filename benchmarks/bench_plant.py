@@ -15,6 +15,12 @@ memory (``/proc/<pid>/status`` VmRSS) after every tenth of them.
 
     .venv/bin/python benchmarks/bench_plant.py cycles --cycles 60 --block 10     # ~4 min
     .venv/bin/python benchmarks/bench_plant.py memory --events 10000             # ~2 min
+    .venv/bin/python benchmarks/bench_plant.py journal --rows 10000 100000 1000000   # ~7 GB in /tmp, ~6 min
+
+``journal``: what the plant's reader (``CellView``) costs on journals of 10k, 100k and 1M rows, built as
+``bench_journal.py`` builds them (its journals are reused): its start (the newest N rows and the counts by outcome,
+once) and one poll that finds one new row (the counter, the row by its number, the status file) — the poll is what
+runs between cycles, and must not grow with the journal.
 """
 
 from __future__ import annotations
@@ -60,11 +66,17 @@ def main() -> None:
     cycles.add_argument("--verbose", action="store_true", help="print the windows and each cycle's times")
     memory = sub.add_parser("memory")
     memory.add_argument("--events", type=int, default=10_000)
-    memory.add_argument("--rate", type=float, default=250.0)
+    memory.add_argument("--rate", type=float, default=100.0)
+    journal = sub.add_parser("journal")
+    journal.add_argument("--rows", type=int, nargs="+", default=[10_000, 100_000, 1_000_000])
+    journal.add_argument("--dir", type=Path, default=Path("/tmp/monoguide-bench-journal"))
+    journal.add_argument("--repeats", type=int, default=21)
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench-plant-") as tmp:
         if args.what == "cycles":
             asyncio.run(_cycles(Path(tmp), args.config, args.cycles, args.block))
+        elif args.what == "journal":
+            _journal(args.dir, args.rows, args.repeats)
         else:
             asyncio.run(_memory(Path(tmp), args.events, args.rate))
 
@@ -217,6 +229,36 @@ async def _memory(tmp: Path, events: int, rate: float) -> None:
     first = statistics.mean(m for _, m in samples[1:1 + quarter])
     last = statistics.mean(m for _, m in samples[-quarter:])
     print(f"\nlast quarter vs first quarter (after the first tenth): {100 * (last - first) / first:+.1f} %")
+
+
+# --- the reader's cost against the journal's length -------------------------------------------------
+
+
+def _journal(folder: Path, sizes: list[int], repeats: int) -> None:
+    from bench_journal import _build, _built  # the same journals as bench_journal.py (--keep reuses them)
+
+    from monoguide.daemon.plant._cell_view import CellView
+
+    print("| rows | start ms (once) | poll, one new row ms (median) | poll max ms |\n|---|---|---|---|")
+    for rows in sizes:
+        state_dir = folder / f"rows-{rows}"
+        if not _built(state_dir, rows):
+            _build(state_dir, rows, 2000)
+        entry = seeded_entries(1, time.time())[0]
+        view = CellView(state_dir)
+        started = time.perf_counter()
+        view.start(10)
+        start_ms = (time.perf_counter() - started) * 1000
+        polls = []
+        with Journal(state_dir) as journal:
+            for _ in range(repeats):
+                journal.commit_cycle(entry)
+                began = time.perf_counter()
+                found = view.poll(now=time.time() + 10.0)  # past the wait for the DONE timing: published at once
+                polls.append((time.perf_counter() - began) * 1000)
+                assert len(found.results) == 1
+        view.close()
+        print(f"| {rows:,} | {start_ms:.1f} | {statistics.median(polls):.2f} | {max(polls):.2f} |", flush=True)
 
 
 # --- private ------------------------------------------------------------------------------------

@@ -25,6 +25,7 @@ from asyncua import ua
 from asyncua.common.utils import ServiceError
 from asyncua.crypto.permission_rules import PermissionRuleset, User, UserRole
 from cryptography import x509
+from cryptography.hazmat.primitives.serialization import Encoding
 
 from monoguide.daemon.plant._passwords import verify_password
 from monoguide.daemon.plant._pki import not_valid_now
@@ -59,8 +60,6 @@ class TrustList:
 
     async def validate(self, cert: x509.Certificate, _description: ua.ApplicationDescription) -> None:
         """asyncua's certificate validator (at CreateSession): ``BadCertificateUntrusted`` unless trusted."""
-        from cryptography.hazmat.primitives.serialization import Encoding
-
         if self.subject(cert.public_bytes(Encoding.DER)) is None:
             log.warning("OPC UA: session refused: client certificate %r is not in the trust list %s",
                         cert.subject.rfc4514_string(), self.folder)
@@ -80,8 +79,6 @@ class TrustList:
             except (OSError, ValueError) as exc:
                 log.warning("OPC UA trust list: %s skipped: not a certificate (%s)", path, exc)
                 continue
-            from cryptography.hazmat.primitives.serialization import Encoding
-
             found[hashlib.sha256(cert.public_bytes(Encoding.DER)).hexdigest()] = cert
         return found
 

@@ -12,6 +12,7 @@ from collections import deque
 from pathlib import Path
 
 from asyncua import Server, ua
+from asyncua.common.utils import ServiceError
 
 from monoguide.daemon.errors import PlantListenFailed
 from monoguide.daemon.plant._access import PlantUsers, ReadOnlyRules, TrustList
@@ -73,6 +74,10 @@ class PlantOpcUa:
         await server.load_certificate(str(identity.certificate), format="der")
         await server.load_private_key(str(identity.private_key), format="pem")
         server.set_certificate_validator(self.trust.validate)  # type: ignore[arg-type]
+        # RegisterServer(2) is answered before any session (asyncua's discovery-server role): refused, so that no
+        # client, trusted or not, can add an entry to what this server tells others (FindServers)
+        server.iserver.register_server = _refuse_registration  # type: ignore[method-assign]
+        server.iserver.register_server2 = _refuse_registration  # type: ignore[method-assign]
         self.nodes = await build_address_space(server, self.cell)
         self._event = await server.get_event_generator(self.nodes.event_type, self.nodes.vision_system)
         try:
@@ -178,3 +183,7 @@ class PlantOpcUa:
             return
         self._shown[key] = shown
         await self.server.write_attribute_value(nodeid, value)
+
+
+def _refuse_registration(*_: object) -> None:
+    raise ServiceError(ua.StatusCodes.BadServiceUnsupported)

@@ -257,3 +257,36 @@ def test_anonymous_on_loopback_when_configured(tmp_path: Path) -> None:
     finally:
         stop(process)
         beat.stop()
+
+
+def test_no_client_can_register_a_server(plant_cell: PlantCell) -> None:
+    """RegisterServer is answered before any session: refused to a client the trust list does not know, and the
+    servers FindServers tells of stay this one."""
+    async def run() -> None:
+        from asyncua import Client
+        from helpers.plant_clients import POLICIES
+
+        client = Client(plant_cell.url, timeout=5)
+        client.application_uri = plant_cell.stranger.application_uri
+        await client.set_security(POLICIES["Basic256Sha256"], str(plant_cell.stranger.certificate),
+                                  str(plant_cell.stranger.key), mode=ua.MessageSecurityMode.SignAndEncrypt)
+        await client.connect_socket()
+        try:
+            await client.send_hello()
+            await client.open_secure_channel()
+            server = ua.RegisteredServer()
+            server.ServerUri, server.ProductUri = "urn:intruder", "urn:intruder"
+            server.ServerNames = [ua.LocalizedText("intruder")]
+            server.DiscoveryUrls = ["opc.tcp://127.0.81.99:4840"]
+            server.IsOnline = True
+            with pytest.raises(UaError) as refused:
+                await client.uaclient.register_server(server)
+            assert type(refused.value).__name__ == "BadServiceUnsupported"
+            found = await client.find_servers()
+            assert [s.ApplicationUri for s in found] == [found[0].ApplicationUri]
+            assert "intruder" not in found[0].ApplicationUri
+        finally:
+            await client.close_secure_channel()
+            client.disconnect_socket()
+
+    asyncio.run(run())
