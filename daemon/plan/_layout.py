@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import tomlkit
@@ -18,7 +19,7 @@ import tomlkit.exceptions
 from monoguide.daemon.config import CellConfig, LayoutConfig, load_cell_config
 from monoguide.drivers.atomic_file import write_atomic
 from monoguide.drivers.errors import ConfigError
-from monoguide.drivers.toml_format import commented, matrix, replace_section
+from monoguide.drivers.toml_format import commented, inline_table, matrix, replace_section
 from monoguide.solver.frames import compose, invert, transform_points
 from monoguide.solver.planning import LayoutAssessment, LayoutRequest, ReachRegion
 
@@ -91,19 +92,46 @@ def write_config_with_layout(config: CellConfig, plan: LayoutAssessment, out: Pa
     names = planned_pose_names(config, len(plan.T_w0_si))
     with_flange = any(p.T_b_f is not None for p in config.measuring_poses)
     T_cf_si = [compose(config.reference.T_cf_w0, T) for T in plan.T_w0_si]
+    parts_form = "parts" in doc
     poses = tomlkit.aot()
     for i, (T, name) in enumerate(zip(T_cf_si, names, strict=True)):
         pose = tomlkit.table()
-        pose.update({"name": commented(tomlkit.item(name), note), "points": [i], "T_cf_si": matrix(T)})
+        pose.update({"name": commented(tomlkit.item(name), note), **({} if parts_form else {"points": [i]}),
+                     "T_cf_si": matrix(T)})
         if with_flange and config.reference.T_cf_b is not None and config.camera.T_f_c is not None:
             pose["T_b_f"] = matrix(compose(invert(config.reference.T_cf_b), T, invert(config.camera.T_f_c)))
         poses.append(pose)
-    replace_section(doc, "measuring_poses", poses)
+    if parts_form:
+        _replace_part_poses(doc, config, names, poses)
+    else:
+        replace_section(doc, "measuring_poses", poses)
     return write_atomic(Path(out), doc.as_string(), durable=True,
-                        before_replace=lambda written: _check_written(load_cell_config(written), T_cf_si, Path(out)))
+                        before_replace=lambda written: _check_written(
+                            load_cell_config(written).for_job(config.job), T_cf_si, Path(out)))
 
 
 # --- private -----------------------------------------------------------------------------------
+
+
+def _replace_part_poses(doc: tomlkit.TOMLDocument, config: CellConfig, names: tuple[str, ...], poses: Any) -> None:
+    """A cell of ``[[parts]]``: the planned part type's poses replace the cell's poses of the same name (a new name
+    is added at the end of ``[[measuring_poses]]``, with the next robot pose number), and its ``measuring_poses``
+    become one planned pose per hole; the other part types and the poses only they use stay as they were."""
+    cell_poses = doc["measuring_poses"]
+    where = {entry.get("name"): k for k, entry in enumerate(cell_poses)}
+    for name, pose in zip(names, poses, strict=True):
+        if name in where:
+            entry = cell_poses[where[name]]
+            for key in ("T_cf_si", "T_b_f"):
+                if key in entry and key not in pose:
+                    del entry[key]
+            for key, value in pose.items():
+                entry[key] = value
+        else:
+            cell_poses.append(pose)
+    part = next(entry for entry in doc["parts"] if entry.get("job") == config.job)
+    holes = config.part.point_names
+    part["measuring_poses"] = inline_table({name: [holes[i]] for i, name in enumerate(names)})
 
 
 def _check_written(written: CellConfig, T_cf_si: list[np.ndarray], out: Path) -> None:

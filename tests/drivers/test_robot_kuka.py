@@ -115,7 +115,7 @@ def test_hostile_client_messages_do_not_hurt_the_controller(cell: SimCell, contr
 def test_unknown_pose_and_pose_mismatch(cell: SimCell, controller: ControllerProcess) -> None:
     with KukaRobot(controller.host, controller.port, move_timeout_s=1.0) as r, \
             pytest.raises(RobotCommandRejected, match="no such measuring pose"):
-        r.move_to_measuring_pose(6)
+        r.move_to_measuring_pose(len(taught_poses(cell)))  # one past the last
     wrong = tuple(compose(T, make_T(np.eye(3), np.array([0.0, 0.0, 5.0]))) for T in taught_poses(cell))
     with KukaRobot(controller.host, controller.port, T_b_f_taught=wrong) as r, \
             pytest.raises(RobotPoseMismatch) as info:

@@ -10,6 +10,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from helpers.cell_configs import straight_down_cell
 from helpers.figure_checks import assert_readable, describe, unit
 from typer.testing import CliRunner
 
@@ -19,8 +20,8 @@ from monoguide.daemon.config import load_cell_config
 from monoguide.daemon.plan import LAYOUT_SIZE, cell_layout, draw_layout
 from monoguide.drivers.sim.cell import part_deviation
 from monoguide.solver.camera import PAPER_CAMERA
-from monoguide.solver.frames import compose, invert
-from monoguide.solver.planning import assess_layout, look_at_poses, uncertainty_map
+from monoguide.solver.frames import invert
+from monoguide.solver.planning import assess_layout, uncertainty_map
 from monoguide.solver.synthetic import PAPER_ROOF_POINTS_W
 
 ROOT = Path(__file__).parents[3]
@@ -30,26 +31,6 @@ SIM_CELL = ROOT / "config" / "sim-cell.toml"
 
 def plan(*args: str):
     return CliRunner().invoke(app, ["plan", *args])
-
-
-def straight_down_cell(tmp_path: Path, extra: str = "") -> Path:
-    """The simulated cell with the pre-issue-8 measuring poses (straight down from 650 mm, holes a quarter
-    from the edge), written by hand; ``extra`` replaces the [layout] table's depth of field, say."""
-    text = SIM_CELL.read_text()
-    config = load_cell_config(SIM_CELL)
-    poses = [compose(config.reference.T_cf_w0, T) for T in
-             look_at_poses(config.part.points_w, config.camera.intrinsics, 650.0)]
-    start, end = text.index("[[measuring_poses]]"), text.index("[tracker]")
-    blocks = ""
-    for i, T in enumerate(poses):
-        rows = ",\n".join("    [" + ", ".join(f"{v:.12f}" for v in row) + "]" for row in T)
-        blocks += f'[[measuring_poses]]\nname = "S{i + 1}"\npoints = [{i}]\nT_cf_si = [\n{rows},\n]\n\n'
-    text = text[:start] + blocks + text[end:]
-    if extra:
-        text = re.sub(r"depth_of_field_mm = \[[^\]]*\]", extra, text)
-    path = tmp_path / "cell.toml"
-    path.write_text(text)
-    return path
 
 
 def corner_margin(T_cf_si: np.ndarray, point: int) -> float:
@@ -229,6 +210,30 @@ def test_write_gives_a_copy_with_the_planned_poses_and_nothing_else_changed(tmp_
     again = plan("--layout", "--config", str(new), "--json")  # the copy is planned again to the same poses
     for pose, planned in zip(json.loads(again.stdout)["current"]["poses"], report["poses"], strict=True):
         np.testing.assert_allclose(pose["T_cf_si"], planned["T_cf_si"], atol=1e-6)
+
+
+def test_write_on_a_cell_of_part_types_replaces_the_planned_parts_poses_and_keeps_the_others(tmp_path: Path) -> None:
+    """config/sim-cell.toml ([[parts]]: the roof planned, job 1) with the roof's poses moved away from the plan:
+    the written copy has the planned roof poses under their names, the roof's views one pose per hole, and the
+    hood's poses (S5-S7) and everything of job 2 exactly as they were."""
+    text = SIM_CELL.read_text()
+    moved = re.sub(r"(name = \"S1\".*?T_cf_si = \[\n    \[[^\]]*?, )(-?\d+\.\d+)\]",
+                   lambda m: m.group(1) + f"{float(m.group(2)) + 40.0:.12f}]", text, count=1, flags=re.S)
+    assert moved != text
+    cell, new = tmp_path / "cell.toml", tmp_path / "planned.toml"
+    cell.write_text(moved)
+    run = plan("--layout", "--config", str(cell), "--write", str(new), "--json")
+    assert run.exit_code == 0, run.output
+    report = json.loads(run.stdout)
+    before, after = load_cell_config(SIM_CELL), load_cell_config(new)
+    assert [p.name for p in after.cell_poses] == [p.name for p in before.cell_poses]
+    for pose, planned in zip(after.for_job(1).measuring_poses, report["poses"], strict=True):
+        assert pose.name == planned["name"]
+        np.testing.assert_allclose(pose.T_cf_si, planned["T_cf_si"], atol=1e-9)
+    for old, kept in zip(before.for_job(2).measuring_poses, after.for_job(2).measuring_poses, strict=True):
+        assert (old.name, old.points, old.number) == (kept.name, kept.points, kept.number)
+        np.testing.assert_allclose(kept.T_cf_si, old.T_cf_si, atol=1e-12)
+    np.testing.assert_allclose(after.for_job(2).reference.T_cf_w0, before.for_job(2).reference.T_cf_w0, atol=1e-12)
 
 
 def test_the_generated_sim_cell_is_already_on_its_plan() -> None:
