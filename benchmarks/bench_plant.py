@@ -16,6 +16,7 @@ memory (``/proc/<pid>/status`` VmRSS) after every tenth of them.
     .venv/bin/python benchmarks/bench_plant.py cycles --cycles 60 --block 10     # ~4 min
     .venv/bin/python benchmarks/bench_plant.py memory --events 10000             # ~2 min
     .venv/bin/python benchmarks/bench_plant.py journal --rows 10000 100000 1000000   # ~7 GB in /tmp, ~6 min
+    .venv/bin/python benchmarks/bench_plant.py browse                            # a session's browse tree
 
 ``journal``: what the plant's reader (``CellView``) costs on journals of 10k, 100k and 1M rows, built as
 ``bench_journal.py`` builds them (its journals are reused): its start (the newest N rows and the counts by outcome,
@@ -67,6 +68,7 @@ def main() -> None:
     memory = sub.add_parser("memory")
     memory.add_argument("--events", type=int, default=10_000)
     memory.add_argument("--rate", type=float, default=100.0)
+    sub.add_parser("browse", help="print what a client session browses (a seeded journal, a running status)")
     journal = sub.add_parser("journal")
     journal.add_argument("--rows", type=int, nargs="+", default=[10_000, 100_000, 1_000_000])
     journal.add_argument("--dir", type=Path, default=Path("/tmp/monoguide-bench-journal"))
@@ -75,6 +77,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="bench-plant-") as tmp:
         if args.what == "cycles":
             asyncio.run(_cycles(Path(tmp), args.config, args.cycles, args.block))
+        elif args.what == "browse":
+            asyncio.run(_browse(Path(tmp)))
         elif args.what == "journal":
             _journal(args.dir, args.rows, args.repeats)
         else:
@@ -229,6 +233,46 @@ async def _memory(tmp: Path, events: int, rate: float) -> None:
     first = statistics.mean(m for _, m in samples[1:1 + quarter])
     last = statistics.mean(m for _, m in samples[-quarter:])
     print(f"\nlast quarter vs first quarter (after the first tenth): {100 * (last - first) / first:+.1f} %")
+
+
+# --- a session's browse tree ------------------------------------------------------------------------
+
+
+async def _browse(tmp: Path) -> None:
+    from asyncua import ua
+    from helpers.plant_cells import StatusBeat, write_journal
+
+    state_dir, clients = _state_dir(tmp, 1)
+    write_journal(state_dir, seeded_entries(12, time.time() - 600.0))
+    beat = StatusBeat(state_dir)
+    plant, line = start_plant(Path("config/sim-cell.toml"), state_dir,
+                              plant_file(tmp / "plant.toml", PLANT_HOST, PLANT_PORT + 20), tmp / "plant.log")
+    try:
+        client = await connected(line.split()[2], clients[0], user=USER, password=PASSWORD)
+        idx = await client.get_namespace_index(NAMESPACE)
+        print(f"{line}\nObjects/VisionSystem (ns={idx}: {NAMESPACE})")
+        await _tree(client.get_node(ua.NodeId("VisionSystem", idx)), 1)
+        await client.disconnect()
+    finally:
+        stop(plant)
+        beat.stop()
+
+
+async def _tree(node: Any, depth: int) -> None:
+    from asyncua import ua
+
+    for child in await node.get_children():
+        name = (await child.read_browse_name()).Name
+        shown = ""
+        if await child.read_node_class() == ua.NodeClass.Variable:
+            data = await child.read_data_value(raise_on_bad_status=False)
+            value = data.Value.Value if data.Value is not None else None
+            text = value.Text if isinstance(value, ua.LocalizedText) else value
+            shown = f" = {text!r}" if data.StatusCode.is_good() else f" [{data.StatusCode.name}]"
+        print("  " * depth + name + shown)
+        if name.startswith("Result") and name[6:].isdigit() and name != "Result01":
+            continue  # Result02 .. ResultN: as Result01
+        await _tree(child, depth + 1)
 
 
 # --- the reader's cost against the journal's length -------------------------------------------------
