@@ -175,14 +175,16 @@ def with_calibration(truth: dict[str, Any], calibrated: dict[str, Any], path: Pa
     return data, taken
 
 
-def predicted_grasp_sigma(config: Path, repeatability_mm: float, repeatability_deg: float) -> dict[str, float | None]:
+def predicted_grasp_sigma(config: Path, repeatability_mm: float, repeatability_deg: float,
+                          job: int | None = None) -> dict[str, Any]:
     """The layout's predicted sigma of the part pose at the grasp point (``sigma_mm``, ``sigma_deg``; the principal
     variances of its covariance, ``variances_mm2``, ``variances_deg2``, the shape the grasp target needs) for the
     measuring poses of ``config`` (``[layout]`` sigma_px), with the robot's repeatability ``repeatability_mm`` /
     ``repeatability_deg`` per axis at the flange, carried to the camera through ``[camera] T_f_c`` (what
     ``monoguide plan --layout`` prints as "with the robot's repeatability"); None when the layout leaves the pose
-    undetermined."""
-    layout = cell_layout(load_cell_config(config))
+    undetermined. ``job``: of that part type (None: the config's first)."""
+    cell = load_cell_config(config)
+    layout = cell_layout(cell if job is None else cell.for_job(job))
     request = dataclasses.replace(layout.request, repeatability_mm=repeatability_mm,
                                   repeatability_deg=repeatability_deg)
     assessed = assess_layout(request, layout.T_w0_si, layout.observed)
