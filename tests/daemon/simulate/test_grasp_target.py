@@ -4,16 +4,10 @@ grasp errors drawn from the predicted distribution (honest) and from one 30 % wo
 
 import numpy as np
 import pytest
+from helpers.grasp_runs import ROOF_DEG2, ROOF_MM2, met_fraction
 from scipy import stats
 
 from monoguide.daemon.simulate._grasp_target import judge_grasp_errors, rms_bound_ratio
-from monoguide.solver import frames
-
-# The simulated roof cell's predicted covariance at the grasp point with the robot's repeatability
-# (config/sim-cell.toml, f = 0): its principal variances, mm^2 and deg^2 (sigma 0.234 mm, 0.0226 deg).
-ROOF_MM2 = (0.008058, 0.023004, 0.023715)
-ROOF_DEG2 = (1.3691e-05, 2.3179e-04, 2.6516e-04)
-TRIALS = 2000
 
 
 @pytest.mark.parametrize("n", [1, 4, 30, 400])
@@ -34,30 +28,17 @@ def test_an_uneven_error_has_the_bound_of_its_monte_carlo(variances, n):
     assert rms_bound_ratio(n, variances) == pytest.approx(np.sqrt(np.quantile(ratio2, 0.99)), rel=4e-3)
 
 
-def _runs(variances, n, scale, seed, shape_known=True):
-    """Fraction of seeded runs of ``n`` grasps judged "met": each grasp error a 3-vector of the predicted
-    covariance (principal variances ``variances`` in a random frame) times ``scale``."""
-    rng = np.random.default_rng(seed)
-    sigma = float(np.sqrt(np.sum(variances)))
-    met = 0
-    for _ in range(TRIALS):
-        R = frames.rotvec_to_matrix(rng.normal(size=3))
-        errors = (rng.normal(size=(n, 3)) * np.sqrt(variances) * scale) @ R.T
-        met += judge_grasp_errors(np.linalg.norm(errors, axis=1), sigma, variances if shape_known else None).met
-    return met / TRIALS
-
-
 @pytest.mark.parametrize(("variances", "n"), [(ROOF_MM2, 30), (ROOF_DEG2, 30), (ROOF_MM2, 8), ((1.0, 1.0, 1.0), 60)])
 def test_a_cell_as_predicted_is_met_in_99_percent_of_runs(variances, n):
     # 99 % of 2,000 runs: 1,980 +- 4.5 (binomial)
-    assert 0.985 <= _runs(variances, n, 1.0, seed=n) <= 0.995
-    assert _runs(variances, n, 1.0, seed=n + 1, shape_known=False) >= 0.99  # the widest shape: never stricter
+    assert 0.985 <= met_fraction(variances, n, 1.0, seed=n) <= 0.995
+    assert met_fraction(variances, n, 1.0, seed=n + 1, shape_known=False) >= 0.99  # the widest shape: never stricter
 
 
 @pytest.mark.parametrize("variances", [ROOF_MM2, ROOF_DEG2])
 def test_a_cell_30_percent_worse_is_not_met_in_most_runs_of_30(variances):
-    assert 1.0 - _runs(variances, 30, 1.3, seed=31) > 0.7  # the roof: 85 % (mm), 77 % (deg)
-    assert 1.0 - _runs(variances, 100, 1.3, seed=32) > 0.99  # and the more grasps, the surer
+    assert 1.0 - met_fraction(variances, 30, 1.3, seed=31) > 0.7  # the roof: about 84 % (mm), 77 % (deg)
+    assert 1.0 - met_fraction(variances, 100, 1.3, seed=32) > 0.99  # and the more grasps, the surer
 
 
 def test_the_judgement_of_one_jobs_grasps():
