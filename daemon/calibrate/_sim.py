@@ -101,13 +101,20 @@ def write_before_calibration(truth: CellConfig, data: dict[str, Any], path: Path
         intr[k] = 0.0
     ref = data["reference"]
     ref["T_cf_b"] = _perturbed(truth.reference.T_cf_b, *POSE_PERTURBATION["T_cf_b"], rng)
-    ref["T_cf_w0"] = _perturbed(truth.reference.T_cf_w0, *POSE_PERTURBATION["T_cf_w0"], rng)
+    parts = data.get("parts")  # a cell of part types: each part's reference is perturbed (the first in its place)
+    first_T_cf_w0 = _perturbed(truth.reference.T_cf_w0, *POSE_PERTURBATION["T_cf_w0"], rng)
+    if parts:
+        parts[0]["T_cf_w0"] = first_T_cf_w0
+    else:
+        ref["T_cf_w0"] = first_T_cf_w0
     data["camera"]["T_f_c"] = _perturbed(truth.sim.T_f_c, *POSE_PERTURBATION["T_f_c"], rng)
-    for entry, pose in zip(data["measuring_poses"], truth.measuring_poses, strict=True):
+    for entry, pose in zip(data["measuring_poses"], truth.cell_poses, strict=True):
         # the robot program's taught flange pose is known (read off the robot); where the camera then is, is not
         entry["T_b_f"] = (pose.T_b_f if pose.T_b_f is not None else compose(
             invert(truth.reference.T_cf_b), pose.T_cf_si, invert(truth.sim.T_f_c))).tolist()
         entry["T_cf_si"] = _perturbed(pose.T_cf_si, *POSE_PERTURBATION["T_cf_si"], rng)
+    for entry, part in zip((parts or [])[1:], truth.parts[1:], strict=True):
+        entry["T_cf_w0"] = _perturbed(part.T_cf_w0, *POSE_PERTURBATION["T_cf_w0"], rng)
     if "cell_frame" not in data:
         data["cell_frame"] = {"method": "best-fit",
                               "benchmarks": {k: [float(v) for v in p] for k, p in truth.sim.benchmarks.items()}}

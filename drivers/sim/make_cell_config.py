@@ -12,8 +12,8 @@ plans the same poses. The simulated robot's taught flange poses follow from them
 calibrated poses into the same keys.
 
 The cell's second part type (job 2) is a 1.5 m x 1.0 m hood with 6 featured holes (:data:`HOOD_POINTS_W`), lying
-where the roof lies (its holes' centroid on the roof's), seen straight down from 650 mm by 3 measuring poses with 2
-holes each (:func:`hood_poses`), so that the cell also exercises views of several holes. They are not planned (the
+where the roof lies (its holes' centroid on the roof's), seen from 650 mm, 25 deg off its normal, by 3 measuring poses
+with 2 holes each (:func:`hood_poses`), so that the cell also exercises views of several holes. They are not planned (the
 planner plans one hole per view) but assessed (``assess_layout``) over the same envelope and constraints.
 """
 
@@ -63,6 +63,7 @@ HOOD_POINTS_W = np.array([[150.0, 120.0, 0.0], [400.0, 120.0, 0.0], [1380.0, 180
                           [600.0, 880.0, 0.0], [850.0, 880.0, 0.0]])
 HOOD_VIEWS = ((0, 1), (2, 3), (4, 5))  # the holes each hood pose sees: pairs 250 mm apart
 HOOD_STANDOFF_MM = 650.0
+HOOD_TILT_DEG = 25.0  # off the hood's normal, like the roof's views (a target seen square on calibrates badly)
 HOOD_HOLE_RADIUS_MM = 4.0
 POINTS_W = np.array([[0.0, 0.0, 0.0], [1218.078, 0.0, 0.0], [1218.028, 2058.764, 0.0], [-1.017, 2059.039, -2.677]])
 T_CF_W0_PAPER = np.array([
@@ -120,18 +121,24 @@ def paper_cell_poses() -> dict[str, object]:
 
 
 def hood_poses(T_cf_w0_roof: np.ndarray) -> dict[str, object]:
-    """The hood's reference (its holes' centroid where the roof's is), its three measuring poses (straight down
-    onto the middle of each pair of holes, the pair along the image's long side) and their assessment."""
+    """The hood's reference (its holes' centroid where the roof's is), its three measuring poses (each looking at
+    the middle of a pair of holes from :data:`HOOD_STANDOFF_MM`, tilted :data:`HOOD_TILT_DEG` about the pair's
+    line so that both holes stay at one depth, the pair along the image's long side) and their assessment."""
     shift = POINTS_W.mean(axis=0) - HOOD_POINTS_W.mean(axis=0)
     shift[2] = 0.0
     T_cf_w0 = compose(T_cf_w0_roof, make_T(np.eye(3), shift))
-    down_x = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])  # camera x along W x, looking down -z
-    down_y = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # camera x along W y
+    up, tilt = np.array([0.0, 0.0, 1.0]), np.radians(HOOD_TILT_DEG)
     T_w0_s = []
     for a, b in HOOD_VIEWS:
-        along_x = abs(HOOD_POINTS_W[b, 0] - HOOD_POINTS_W[a, 0]) >= abs(HOOD_POINTS_W[b, 1] - HOOD_POINTS_W[a, 1])
+        along = HOOD_POINTS_W[b] - HOOD_POINTS_W[a]
+        along /= np.linalg.norm(along)
+        aside = np.cross(up, along)
         middle = (HOOD_POINTS_W[a] + HOOD_POINTS_W[b]) / 2
-        T_w0_s.append(make_T(down_x if along_x else down_y, middle + np.array([0.0, 0.0, HOOD_STANDOFF_MM])))
+        centre = middle + HOOD_STANDOFF_MM * (np.cos(tilt) * up + np.sin(tilt) * aside)
+        z = (middle - centre) / np.linalg.norm(middle - centre)
+        x = along - (along @ z) * z
+        x /= np.linalg.norm(x)
+        T_w0_s.append(make_T(np.column_stack([x, np.cross(z, x), z]), centre))
     request = LayoutRequest(camera=PAPER_CAMERA, points_w=HOOD_POINTS_W, envelope=ENVELOPE, constraints=LAYOUT,
                             sigma_px=SIGMA_PX, repeatability_mm=REPEATABILITY_MM, repeatability_deg=REPEATABILITY_DEG,
                             point_names=HOOD_POINT_NAMES, T_f_c=T_F_C_SIM)
@@ -193,7 +200,7 @@ def cell_config_toml() -> str:
     for k, T in enumerate(hood["T_cf_s"]):
         holes = " and ".join(HOOD_POINT_NAMES[j] for j in HOOD_VIEWS[k])
         poses.append(_table({"name": commented(tomlkit.item(f"S{len(m['T_cf_s']) + k + 1}"),
-                                               f"hood {holes}, straight down from {HOOD_STANDOFF_MM:g} mm"),
+                                               f"hood {holes}, from {HOOD_STANDOFF_MM:g} mm, {HOOD_TILT_DEG:g} deg off its normal"),
                              "T_cf_si": matrix(T)}))
     doc["measuring_poses"] = poses
     parts = tomlkit.aot()

@@ -43,7 +43,9 @@ KEY_ORDER = (
 
 
 def example_record(config: dict[str, Any]) -> dict[str, Any]:
-    """The example record (a JSON-ready dict, keys in the spec's order) of a parsed cell config."""
+    """The example record (a JSON-ready dict, keys in the spec's order) of a parsed cell config (its first part
+    type, job 1, in a cell of ``[[parts]]``)."""
+    config = _first_part_type(config)
     camera = CameraModel.from_dict(_key(config, "camera", "intrinsics"))
     points_w = np.round(np.array(_key(config, "part", "points_w"), dtype=float), POINT_DECIMALS)
     poses = _key(config, "measuring_poses")
@@ -92,6 +94,20 @@ def main(argv: list[str] | None = None) -> int:
 
 class _MissingConfigKey(ValueError):
     """The cell config lacks a key the example needs."""
+
+
+def _first_part_type(config: dict[str, Any]) -> dict[str, Any]:
+    """A cell of ``[[parts]]`` as the single-part form of its first part: ``[part]``, ``[reference] T_cf_w0`` and
+    its poses with ``points`` (indices of its holes); a single-part config as it is."""
+    if "parts" not in config:
+        return config
+    part = _key(config, "parts")[0]
+    names = list(part.get("point_names") or [f"P{i + 1}" for i in range(len(_key(part, "points_w")))])
+    views = _key(part, "measuring_poses")
+    poses = [dict(pose, points=[names.index(h) for h in views[pose["name"]]])
+             for pose in _key(config, "measuring_poses") if pose.get("name") in views]
+    reference = dict(config.get("reference", {}), T_cf_w0=_key(part, "T_cf_w0"))
+    return {**config, "part": part, "reference": reference, "measuring_poses": poses}
 
 
 def _key(table: dict[str, Any], *path: str) -> Any:

@@ -380,18 +380,21 @@ def _shifted(T: list[list[float]], shift: np.ndarray) -> list[list[float]]:
 
 def test_a_calibration_file_gives_the_service_its_values_and_the_cell_keeps_the_truth(tmp_path: Path) -> None:
     data = tomllib.loads(SIM_CELL.read_text())
-    data["reference"]["T_cf_w0"] = _shifted(data["reference"]["T_cf_w0"], np.array([0.0, 2.0, 0.0]))
+    roof = data["parts"][0]  # job 1
+    roof["T_cf_w0"] = _shifted(roof["T_cf_w0"], np.array([0.0, 2.0, 0.0]))
     data["measuring_poses"][2]["T_cf_si"] = _shifted(data["measuring_poses"][2]["T_cf_si"], np.array([1.0, 0, 0]))
     calibration = tmp_path / "calibrated.toml"
     calibration.write_text(dumps_toml(data))
     cell = derive_config(SIM_CELL, tmp_path / "run", host="127.0.13.20", calibration=calibration)
     service, truth, source = (load_cell_config(p) for p in (cell.service, cell.config, SIM_CELL))
     assert cell.service != cell.config and service.sim.truth_config == cell.config
-    np.testing.assert_allclose(service.reference.T_cf_w0, np.array(data["reference"]["T_cf_w0"]), atol=1e-9)
+    np.testing.assert_allclose(service.reference.T_cf_w0, np.array(roof["T_cf_w0"]), atol=1e-9)
+    np.testing.assert_array_equal(service.for_job(2).reference.T_cf_w0, source.for_job(2).reference.T_cf_w0)
     np.testing.assert_allclose(service.measuring_poses[2].T_cf_si, np.array(data["measuring_poses"][2]["T_cf_si"]),
                                atol=1e-9)
     np.testing.assert_array_equal(truth.reference.T_cf_w0, source.reference.T_cf_w0)  # the cell: the truth
-    assert cell.calibration is not None and "measuring_poses.S3.T_cf_si" in cell.calibration["values"]
+    assert cell.calibration is not None and {"measuring_poses.S3.T_cf_si", "parts.1.T_cf_w0"} <= set(
+        cell.calibration["values"])
     # the service's simulated camera is built from the truth, not from what the service believes
     from monoguide.daemon.assembly import sim_cell_spec
 
@@ -422,16 +425,16 @@ def test_a_run_with_a_miscalibrated_cell_grasps_off_by_what_the_calibration_got_
     b = rng.normal(size=3)
     b *= 0.6 / np.linalg.norm(b)  # below [robot] pose_tolerance_mm: the capture poses still pass
     data = tomllib.loads(SIM_CELL.read_text())
-    data["reference"]["T_cf_w0"] = _shifted(data["reference"]["T_cf_w0"], d)
+    data["parts"][0]["T_cf_w0"] = _shifted(data["parts"][0]["T_cf_w0"], d)  # the roof's, job 1: the run's only job
     data["reference"]["T_cf_b"] = _shifted(data["reference"]["T_cf_b"], b)
     calibration = tmp_path / "calibrated.toml"
     calibration.write_text(dumps_toml(data))
     done, work = _simulate(tmp_path, "--json", "--cycles", "2", "--perfect-robot", "--seed", "4", "--host",
-                           "127.0.13.21", "--calibration", str(calibration))
+                           "127.0.13.21", "--calibration", str(calibration), "--jobs", "1")
     assert done.returncode == 0, done.stderr
     *cycles, summary = [json.loads(line) for line in done.stdout.splitlines()]
     assert summary["calibration"]["path"] == str(calibration.resolve())
-    assert set(summary["calibration"]["values"]) >= {"reference.T_cf_w0", "reference.T_cf_b"}
+    assert set(summary["calibration"]["values"]) >= {"parts.1.T_cf_w0", "reference.T_cf_b"}
     # expected: E = T_w_g^-1 T_cf_w0^-1 (Tr(-d) Tr(b)) T_cf_w0 T_w_g, a pure translation by b - d
     expected_mm = float(np.linalg.norm(b - d))
     truth = [t for t in read_truth_log(work / "truth.jsonl") if t["offset_written"] is not None]

@@ -39,19 +39,24 @@ def test_the_documented_command_writes_it_from_the_repository_root() -> None:
 
 
 def test_the_example_is_the_cell_of_the_config_file() -> None:
+    """The record is job 1's (the roof's) of the config's [[parts]]: its poses by its views, its reference."""
     config = tomllib.loads(CONFIG_PATH.read_text())
+    roof = config["parts"][0]
+    assert roof["job"] == 1
     example = json.loads(EXAMPLE_PATH.read_text())
-    T_cf_si = [np.array(p["T_cf_si"]) for p in config["measuring_poses"]]
+    poses = [p for p in config["measuring_poses"] if p["name"] in roof["measuring_poses"]]
+    T_cf_si = [np.array(p["T_cf_si"]) for p in poses]
     T_s1_cf = np.linalg.inv(T_cf_si[0])
     for view, T in zip(example["views"], T_cf_si, strict=True):
         np.testing.assert_allclose(view["T_s1_si"], T_s1_cf @ T, atol=1e-6)
-    np.testing.assert_allclose(example["T_s1_w0"], T_s1_cf @ np.array(config["reference"]["T_cf_w0"]), atol=1e-6)
+    np.testing.assert_allclose(example["T_s1_w0"], T_s1_cf @ np.array(roof["T_cf_w0"]), atol=1e-6)
     T_b_s1 = np.linalg.inv(np.array(config["reference"]["T_cf_b"])) @ T_cf_si[0]
     np.testing.assert_allclose(example["T_b_s1"], T_b_s1, atol=1e-6)
     assert example["camera"] == config["camera"]["intrinsics"]
-    np.testing.assert_allclose(example["points_w"], config["part"]["points_w"], atol=5e-4)
+    np.testing.assert_allclose(example["points_w"], roof["points_w"], atol=5e-4)
     seen = [(o["view"], o["point"]) for o in example["observations"]]
-    assert seen == [(i, p) for i, pose in enumerate(config["measuring_poses"]) for p in pose["points"]]
+    names = roof["point_names"]
+    assert seen == [(i, names.index(h)) for i, pose in enumerate(poses) for h in roof["measuring_poses"][pose["name"]]]
 
 
 def test_its_pixels_are_the_truth_seen_through_the_camera_with_its_noise() -> None:
@@ -78,5 +83,5 @@ def test_a_config_without_the_reference_is_one_error_line(tmp_path: Path, capsys
     broken = tmp_path / "cell.toml"
     broken.write_text(text[:start] + text[text.index("\n[", start + 1):])
     assert main([str(tmp_path / "out.json"), "--config", str(broken)]) == 1
-    assert "missing key 'reference'" in capsys.readouterr().err
+    assert "missing key 'reference" in capsys.readouterr().err  # [reference] T_cf_b: the robot base
     assert not (tmp_path / "out.json").exists()
