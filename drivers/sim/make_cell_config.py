@@ -12,9 +12,10 @@ plans the same poses. The simulated robot's taught flange poses follow from them
 calibrated poses into the same keys.
 
 The cell's second part type (job 2) is a 1.5 m x 1.0 m hood with 6 featured holes (:data:`HOOD_POINTS_W`), lying
-where the roof lies (its holes' centroid on the roof's), seen from 650 mm, 25 deg off its normal, by 3 measuring poses
-with 2 holes each (:func:`hood_poses`), so that the cell also exercises views of several holes. They are not planned (the
-planner plans one hole per view) but assessed (``assess_layout``) over the same envelope and constraints.
+where the roof lies (its holes' centroid on the roof's), seen from 650 mm, 25 deg off its normal, by 3 measuring
+poses with 2 holes each (:func:`hood_poses`), so that the cell also exercises views of several holes. They are not
+planned (the planner plans one hole per view) but assessed (``assess_layout``) over the same envelope and
+constraints.
 """
 
 from __future__ import annotations
@@ -199,8 +200,8 @@ def cell_config_toml() -> str:
         poses.append(_table({"name": name, "T_cf_si": matrix(T)}))
     for k, T in enumerate(hood["T_cf_s"]):
         holes = " and ".join(HOOD_POINT_NAMES[j] for j in HOOD_VIEWS[k])
-        poses.append(_table({"name": commented(tomlkit.item(f"S{len(m['T_cf_s']) + k + 1}"),
-                                               f"hood {holes}, from {HOOD_STANDOFF_MM:g} mm, {HOOD_TILT_DEG:g} deg off its normal"),
+        note = f"hood {holes}, from {HOOD_STANDOFF_MM:g} mm, {HOOD_TILT_DEG:g} deg off its normal"
+        poses.append(_table({"name": commented(tomlkit.item(f"S{len(m['T_cf_s']) + k + 1}"), note),
                              "T_cf_si": matrix(T)}))
     doc["measuring_poses"] = poses
     parts = tomlkit.aot()
