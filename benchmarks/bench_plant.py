@@ -156,6 +156,9 @@ class _Ignored:
     def event_notification(self, *_: Any) -> None:
         pass
 
+    def status_change_notification(self, *_: Any) -> None:
+        pass
+
 
 async def _disconnect(sessions: list[Any]) -> None:
     for client in sessions:

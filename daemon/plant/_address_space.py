@@ -28,7 +28,7 @@ from typing import Any
 
 from asyncua import Node, Server, ua
 
-from monoguide.daemon.plant._result_fields import RESULT_FIELDS, ResultContext
+from monoguide.daemon.plant._result_fields import RESULT_FIELDS, ResultContext, timestamp
 from monoguide.daemon.plant._states import AUTOMATIC_STATES, TOP_STATES
 
 NAMESPACE = "urn:monoguide:machinevision"  # the hand-made 40100 types and the instance (not the VDMA namespace)
@@ -112,7 +112,8 @@ async def build_address_space(server: Server, cell: CellDescription) -> VisionSy
     results = []
     for slot in range(cell.last_results):
         result = await _object(results_folder, idx, f"Result{slot + 1:02d}", types["ResultType"])
-        results.append({f.name: await _variable(result, idx, f.name, None, f.variant) for f in RESULT_FIELDS})
+        results.append({f.name: await _variable(result, idx, f.name, None, f.variant, array=f.array)
+                        for f in RESULT_FIELDS})
 
     service_object = await _object(vs, idx, "Service", None)
     service = {name: await _variable(service_object, idx, name, None, kind) for name, kind in SERVICE_VARIABLES}
@@ -192,10 +193,15 @@ def _child_id(parent: Node, idx: int, name: str) -> ua.NodeId:
     return ua.NodeId(f"{parent.nodeid.Identifier}.{name}", idx)
 
 
-async def _variable(parent: Node, idx: int, name: str, value: Any, kind: ua.VariantType) -> Node:
+async def _variable(parent: Node, idx: int, name: str, value: Any, kind: ua.VariantType, *,
+                    array: bool = False) -> Node:
     initial = _DEFAULTS[kind] if value is None else value  # asyncua types a variable by its first value
+    if array:
+        initial = [initial]  # a one-dimensional array (ValueRank 1), as the base offset's six numbers
     node = await parent.add_variable(_child_id(parent, idx, name), ua.QualifiedName(name, idx),
                                      ua.Variant(initial, kind), kind, datatype=_DATA_TYPES[kind])
+    if array:
+        await node.write_attribute(ua.AttributeIds.ValueRank, ua.DataValue(ua.Variant(1, ua.VariantType.Int32)))
     if value is None:
         await node.write_value(bad(ua.StatusCodes.BadWaitingForInitialData))
     return node
@@ -206,8 +212,6 @@ async def _write(server: Server, node: Node, value: ua.DataValue) -> None:
 
 
 def _date_value(seconds: float | None) -> ua.DataValue:
-    from monoguide.daemon.plant._result_fields import timestamp
-
     if seconds is None:
         return bad(ua.StatusCodes.BadNoDataAvailable)
     return ua.DataValue(ua.Variant(timestamp(seconds), ua.VariantType.DateTime))

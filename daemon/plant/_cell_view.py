@@ -14,6 +14,7 @@ import logging
 import os
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from monoguide.daemon.errors import JournalReplaced
 from monoguide.daemon.plant._results import CycleResult, amended, cycle_result
@@ -41,8 +42,6 @@ class CellView:
     """Reads the state directory of one service; opens the journal once it exists, again when it was replaced."""
 
     def __init__(self, state_dir: os.PathLike[str] | str) -> None:
-        from pathlib import Path
-
         self.state_dir = Path(state_dir)
         self.journal: Journal | None = None
         self.seen = 0  # the newest cycle number published

@@ -80,8 +80,9 @@ def test_the_vision_system_shows_the_journal(plant_cell: PlantCell) -> None:
                 base = f"VisionSystem.ResultManagement.Results.Result{slot:02d}"
                 assert await _read(client, idx, f"{base}.ResultId") == number
                 assert await _read(client, idx, f"{base}.PartTag") == entry.part_tag
-                dv = await _node(client, idx, f"{base}.BaseOffset").read_data_value(  # type: ignore[attr-defined]
-                    raise_on_bad_status=False)
+                offset_node = _node(client, idx, f"{base}.BaseOffset")
+                assert await offset_node.read_value_rank() == 1  # type: ignore[attr-defined]
+                dv = await offset_node.read_data_value(raise_on_bad_status=False)  # type: ignore[attr-defined]
                 if entry.error is None:
                     assert dv.Value.Value == pytest.approx(entry.result["base_offset_xyzabc"], abs=1e-9)
                     assert await _read(client, idx, f"{base}.ErrorCode") == ""
