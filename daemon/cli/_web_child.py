@@ -1,17 +1,16 @@
 """``monoguide simulate --web ADDRESS``: the operator page on the run's state directory, a child process
 (``monoguide web``) from the run's start, kept up after its summary until Ctrl-C so that the failed cycles can be
-looked at, and stopped whenever and however the command ends (the command's context closes it)."""
+looked at, and stopped however the command ends (at the interpreter's exit: ``atexit``)."""
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
-
-import click
 
 from monoguide.daemon.cli._console import say, stderr_console
 
@@ -25,7 +24,7 @@ def start_web_page(address: str | None, state_dir: Path, config: Path) -> str | 
         return None
     child = subprocess.Popen([sys.executable, "-m", "monoguide.daemon.cli", "web", "--state-dir", str(state_dir),
                               "--config", str(config), "--bind", address], stdin=subprocess.DEVNULL)
-    click.get_current_context().call_on_close(lambda: _stop(child))
+    atexit.register(_stop, child)
     url = f"http://{address}/"
     say(stderr_console(), f"the operator page: {url} (monoguide web, pid {child.pid})")
     return url
