@@ -151,7 +151,7 @@ def _newest(d: Path) -> int:
 
 def _cycle(cycles: int) -> None:
     work = Path(tempfile.mkdtemp(prefix="monoguide-bench-web-cycle-"))
-    config = bench_journal_free_config(work)
+    config = _sharp_config(work)
     polling = threading.Event()
     stop = threading.Event()
     served = [0]
@@ -198,7 +198,7 @@ def _cycle(cycles: int) -> None:
     print(f"(cycles: {len(groups[False])} without, {len(groups[True])} with)")
 
 
-def bench_journal_free_config(work: Path) -> Path:
+def _sharp_config(work: Path) -> Path:
     """config/sim-cell.toml with sharp frames (no defocus): each 5 MP frame rendered ~5 times faster."""
     text = SIM_CELL.read_text()
     assert text.count("aperture_mm = 1.4867") == 1

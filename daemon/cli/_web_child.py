@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 from monoguide.daemon.cli._console import say, stderr_console
+from monoguide.daemon.simulate import dies_with_us
 
 STOP_S = 10.0
 
@@ -22,8 +23,10 @@ def start_web_page(address: str | None, state_dir: Path, config: Path) -> str | 
     command ends; its URL (None, and nothing started, without an address)."""
     if address is None:
         return None
-    child = subprocess.Popen([sys.executable, "-m", "monoguide.daemon.cli", "web", "--state-dir", str(state_dir),
-                              "--config", str(config), "--bind", address], stdin=subprocess.DEVNULL)
+    # dies_with_us: the page ends with this process even when it is killed (SIGKILL) and atexit never runs
+    child = subprocess.Popen(dies_with_us([sys.executable, "-m", "monoguide.daemon.cli", "web", "--state-dir",
+                                           str(state_dir), "--config", str(config), "--bind", address]),
+                             stdin=subprocess.DEVNULL)
     atexit.register(_stop, child)
     url = f"http://{address}/"
     say(stderr_console(), f"the operator page: {url} (monoguide web, pid {child.pid})")
