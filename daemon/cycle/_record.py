@@ -20,7 +20,7 @@ from monoguide.daemon.config import CellConfig, ChecksConfig
 from monoguide.solver import frames
 from monoguide.solver.holes import perspective_correction
 from monoguide.solver.offset import PartDisplacement
-from monoguide.solver.record import DEFAULT_SIGMA_PX, FORMAT, MeasurementRecord, parse_record
+from monoguide.solver.record import DEFAULT_SIGMA_PX, FORMAT, MeasurementRecord, envelope_to_record, parse_record
 
 
 @dataclass
@@ -134,19 +134,11 @@ class RecordBuilder:
         return record
 
     def _envelope(self) -> dict[str, Any]:
-        """The offset envelope: ``[checks]``, else ``[layout]``'s (totals: the norms of its per-axis limits),
-        else the record's default."""
-        c, layout = self.checks, self.config.layout
-        axis_mm = c.envelope_axis_mm or (layout.envelope.translation_mm if layout is not None else None)
-        axis_deg = c.envelope_axis_deg or (layout.envelope.rotation_deg if layout is not None else None)
-        total_mm = c.envelope_mm or (float(np.linalg.norm(axis_mm)) if axis_mm else 50.0)
-        total_deg = c.envelope_deg or (float(np.linalg.norm(axis_deg)) if axis_deg else 5.0)
-        out: dict[str, Any] = {"mm": total_mm, "deg": total_deg}
-        if axis_mm:
-            out["axis_mm"] = [float(v) for v in axis_mm]
-        if axis_deg:
-            out["axis_deg"] = [float(v) for v in axis_deg]
-        return out
+        """The part's one envelope (``[checks]`` over its ``[layout]``'s, solver/envelope.py) in the record's form,
+        about its point (the holes' centroid unless ``envelope_centre_w`` says otherwise)."""
+        layout = self.config.layout
+        envelope = self.checks.envelope(layout.envelope if layout is not None else None)
+        return envelope_to_record(envelope.at(self.config.part.points_w))
 
     def _record(self, job: int, captures: list[Capture]) -> dict[str, Any]:
         observations = []

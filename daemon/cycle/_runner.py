@@ -301,4 +301,4 @@ def _search_envelope(config: CellConfig) -> DeviationEnvelope:
     return DeviationEnvelope(
         tuple(max(a, b) for a, b in zip(envelope.translation_mm, config.sim.deviation_translation_mm, strict=True)),
         tuple(max(a, b) for a, b in zip(envelope.rotation_deg, config.sim.deviation_rotation_deg, strict=True)),
-        envelope.centre_w)
+        envelope.about_w)

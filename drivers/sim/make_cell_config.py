@@ -55,6 +55,12 @@ LAYOUT = LayoutConstraints(
     max_view_angle_envelope_deg=60.0,
 )
 ENVELOPE = DeviationEnvelope(translation_mm=(50.0, 50.0, 50.0), rotation_deg=(5.0, 5.0, 5.0))
+# The simulated parts are drawn within 99 % of the envelope: one drawn at its very edge is measured beyond it about
+# half the time (the measurement's noise, ~0.1 mm), and refused (OFFSET_OUT_OF_ENVELOPE) as the check must
+# (benchmarks/bench_envelope.py --measured: 0.4-0.6 % of parts drawn up to the limits).
+SUPPLY_SHARE = 0.99
+SIM_DEVIATION = DeviationEnvelope(translation_mm=tuple(SUPPLY_SHARE * v for v in ENVELOPE.translation_mm),
+                                  rotation_deg=tuple(SUPPLY_SHARE * v for v in ENVELOPE.rotation_deg))
 DEFOCUS_CIRCLE_PX = 2.0
 SIGMA_PX = 0.1
 REPEATABILITY_MM, REPEATABILITY_DEG = 0.05, 0.01
@@ -243,9 +249,10 @@ def cell_config_toml() -> str:
         "aperture_mm": commented(number(aperture_mm, 4), f"blur circle {DEFOCUS_CIRCLE_PX:g} px at the depth of "
                                                          "field's ends"),
         "tool_smr_f": [0.0, 0.0, 250.0], "T_f_c": matrix(T_F_C_SIM), "T_cf_tracker": matrix(T_CF_TRACKER_SIM)})
-    sim["deviation"] = _table({"translation_mm": numbers(ENVELOPE.translation_mm, 1),
-                               "rotation_deg": numbers(ENVELOPE.rotation_deg, 1)},
-                              "+- per axis of the part frame; rotation about the holes' centroid (the paper's range)")
+    sim["deviation"] = _table({"translation_mm": numbers(SIM_DEVIATION.translation_mm, 2),
+                               "rotation_deg": numbers(SIM_DEVIATION.rotation_deg, 2)},
+                              f"+- per axis, about the holes' centroid: {SUPPLY_SHARE * 100:g} % of the envelope "
+                              "(the measurement's noise at its very edge)")
     sim["benchmarks"] = _table({name: numbers(xyz, 1) for name, xyz in BENCHMARKS.items()},
                                "the three SMR nests that define the cell frame (where they truly are: [cell_frame])")
     targets = tomlkit.aot()
