@@ -150,11 +150,13 @@ def _summary(result: RunResult, perfect_robot: bool) -> tuple[list[dict[str, Any
     """The run's cycles (one per part the line played) and its summary, with the run's settings."""
     cycles = join_cycles(result.plc_records, result.journal_rows, result.truth, result.faults)
     repeatability = _repeatability(result)
-    predicted = _prediction(result, repeatability)
+    jobs = {}
+    for job in dict.fromkeys(result.cell.jobs):  # each part type judged against its own prediction
+        predicted = _prediction(result, repeatability, job)
+        jobs[job] = Targets.for_run(perfect_robot, predicted["sigma_mm"], predicted["sigma_deg"],
+                                    predicted.get("variances_mm2"), predicted.get("variances_deg2"))
     summary = summarize(cycles, result.truth, result.journal_rows, result.faults, result.rss,
-                        Targets.for_run(perfect_robot, predicted["sigma_mm"], predicted["sigma_deg"],
-                                        predicted.get("variances_mm2"), predicted.get("variances_deg2")),
-                        result.logged_codes)
+                        Targets.for_run(perfect_robot), result.logged_codes, jobs)
     summary.update({"seed": _seed(result.cell.data), "robot": result.cell.data["robot"]["backend"],
                     "perfect_robot": perfect_robot, **repeatability, "calibration": result.cell.calibration,
                     "elapsed_s": round(result.elapsed_s, 1), "service_exit": result.service_exit})
@@ -171,11 +173,12 @@ def _repeatability(result: RunResult) -> dict[str, float]:
             "unseen_repeatability_mm": (1.0 - seen) * mm, "unseen_repeatability_deg": (1.0 - seen) * deg}
 
 
-def _prediction(result: RunResult, repeatability: dict[str, float]) -> dict[str, float | None]:
-    """The layout's predicted sigma at the grasp point for the run's cell and the repeatability nobody sees."""
+def _prediction(result: RunResult, repeatability: dict[str, float], job: int) -> dict[str, float | None]:
+    """The layout's predicted sigma at the grasp point for a part type of the run's cell and the repeatability
+    nobody sees."""
     try:
         return predicted_grasp_sigma(result.cell.config, repeatability["unseen_repeatability_mm"],
-                                     repeatability["unseen_repeatability_deg"])
+                                     repeatability["unseen_repeatability_deg"], job)
     except MonoguideError as error:
         report_error(error, "no predicted sigma for this layout (the grasp target is the paper's 0.5 mm)")
         return {"sigma_mm": None, "sigma_deg": None}

@@ -31,7 +31,15 @@ def render(console: Console, cycles: Sequence[dict[str, Any]], summary: dict[str
                   f"{fixed(summary['grasp_rms_deg'], 5)} deg over {summary['grasped']} grasped parts")
     table.add_row("grasp error max",
                   f"{fixed(summary['grasp_max_mm'], 4)} mm, {fixed(summary['grasp_max_deg'], 5)} deg")
-    table.add_row("grasp target", grasp_target_text(summary))
+    per_job = summary.get("jobs") or {}
+    if len(per_job) > 1:
+        for job, of_job in per_job.items():
+            table.add_row(f"job {job} grasp error", f"RMS {fixed(of_job['grasp_rms_mm'], 4)} mm, "
+                          f"{fixed(of_job['grasp_rms_deg'], 5)} deg, max {fixed(of_job['grasp_max_mm'], 4)} mm over "
+                          f"{of_job['grasped']} grasped of {of_job['cycles']}")
+            table.add_row(f"job {job} grasp target", grasp_target_text({**summary, **of_job}))
+    else:
+        table.add_row("grasp target", grasp_target_text(summary))
     if summary.get("calibration"):
         table.add_row("calibration", calibration_text(summary["calibration"]))
     split = ", ".join(f"{k} {fixed(v, 1)}" for k, v in summary["timings_ms_median"].items() if v is not None)

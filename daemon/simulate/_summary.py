@@ -68,9 +68,12 @@ class Targets:
 
 def summarize(cycles: Sequence[dict[str, Any]], truth: Sequence[dict[str, Any]], journal_rows: Iterable[Any] = (),
               faults: Sequence[InjectedFault] = (), rss: dict[str, float] | None = None,
-              targets: Targets | None = None, logged_codes: Iterable[str] = ()) -> dict[str, Any]:
+              targets: Targets | None = None, logged_codes: Iterable[str] = (),
+              jobs: dict[int, Targets] | None = None) -> dict[str, Any]:
     """The run's summary object (the last ``--json`` line), with the targets and whether each was met.
-    ``logged_codes``: error codes the service's log names (a PLC fault that ends no cycle is only logged)."""
+    ``logged_codes``: error codes the service's log names (a PLC fault that ends no cycle is only logged).
+    ``jobs``: each part type's targets (its own prediction): a run of several part types judges each job's grasps
+    against its own, in ``summary["jobs"]`` and a grasp target per job; ``targets`` then holds the rest."""
     rows = list(journal_rows)
     logged = set(logged_codes)
     good = [c for c in cycles if c["status"] == "ok"]
@@ -115,14 +118,16 @@ def summarize(cycles: Sequence[dict[str, Any]], truth: Sequence[dict[str, Any]],
         "faults": [_fault_outcome(f, cycles, logged) for f in faults],
     }
     targets = targets or Targets.for_run(False)
-    judged = targets.judge(mm, deg)
-    bounds = {unit: j.bound for unit, j in judged.items()}
-    summary.update({"grasp_target_mm": min(targets.grasp_rms_mm, bounds.get("mm", math.inf)),
-                    "grasp_target_deg": bounds.get("deg", targets.grasp_rms_deg),
-                    "predicted_sigma_mm": targets.predicted_sigma_mm,
-                    "predicted_sigma_deg": targets.predicted_sigma_deg,
-                    "grasp_vs_predicted": {unit: j.as_dict() for unit, j in judged.items()}})
-    summary["targets"] = _targets(summary, targets)
+    if jobs is not None and len(jobs) == 1:
+        targets = next(iter(jobs.values()))  # one part type: the run's grasps are its grasps
+    several = jobs is not None and len(jobs) > 1
+    summary.update(_grasp_judgement(mm, deg, Targets(targets.grasp_rms_mm, targets.grasp_rms_deg, judged=False)
+                                    if several else targets))
+    summary["jobs"] = {str(job): {"cycles": sum(c.get("job") == job for c in cycles),
+                                  "ok": sum(c.get("job") == job for c in good),
+                                  **_job_grasps([c for c in grasped if c.get("job") == job], job_targets)}
+                       for job, job_targets in (jobs or {}).items()}
+    summary["targets"] = _targets(summary, targets, several)
     summary["grasp_target_met"] = all(t["met"] for t in summary["targets"] if t["name"].startswith("grasp_"))
     summary["targets_met"] = all(t["met"] for t in summary["targets"])
     return summary
@@ -174,14 +179,37 @@ def _fault_outcome(fault: InjectedFault, cycles: Sequence[dict[str, Any]], logge
             "back_ready": any(c["status"] == "ok" for c in later)}
 
 
-def _targets(summary: dict[str, Any], targets: Targets) -> list[dict[str, Any]]:
+def _grasp_judgement(mm: Sequence[float], deg: Sequence[float], targets: Targets) -> dict[str, Any]:
+    """Grasp errors judged against a prediction: the limits (the bound for that many grasps, never above the
+    fixed ones), the prediction, and the ratio RMS / sigma with its bound."""
+    judged = targets.judge(mm, deg)
+    bounds = {unit: j.bound for unit, j in judged.items()}
+    return {"grasp_target_mm": min(targets.grasp_rms_mm, bounds.get("mm", math.inf)),
+            "grasp_target_deg": bounds.get("deg", targets.grasp_rms_deg),
+            "predicted_sigma_mm": targets.predicted_sigma_mm, "predicted_sigma_deg": targets.predicted_sigma_deg,
+            "grasp_vs_predicted": {unit: j.as_dict() for unit, j in judged.items()}}
+
+
+def _job_grasps(grasped: Sequence[dict[str, Any]], targets: Targets) -> dict[str, Any]:
+    """One part type's grasps: their RMS and max, judged against its own prediction."""
+    mm = [float(c["grasp_error_mm"]) for c in grasped]
+    deg = [float(c["grasp_error_deg"]) for c in grasped]
+    return {"grasped": len(grasped), "grasp_rms_mm": _rms(mm), "grasp_rms_deg": _rms(deg),
+            "grasp_max_mm": max(mm) if mm else None, "grasp_max_deg": max(deg) if deg else None,
+            **_grasp_judgement(mm, deg, targets)}
+
+
+def _targets(summary: dict[str, Any], targets: Targets, per_job: bool = False) -> list[dict[str, Any]]:
     def target(name: str, value: float | None, limit: float | int, le: bool = True) -> dict[str, Any]:
         met = value is not None and (value <= limit if le else value == limit)
         return {"name": name, "value": value, "limit": limit, "met": met}
 
-    out = [target("grasp_rms_mm", summary["grasp_rms_mm"], summary["grasp_target_mm"])]
-    if summary["grasp_target_deg"] is not None:
-        out.append(target("grasp_rms_deg", summary["grasp_rms_deg"], summary["grasp_target_deg"]))
+    out = []
+    judged = [(f" job {job}", of_job) for job, of_job in summary["jobs"].items()] if per_job else [("", summary)]
+    for suffix, of in judged:
+        out.append(target("grasp_rms_mm" + suffix, of["grasp_rms_mm"], of["grasp_target_mm"]))
+        if of["grasp_target_deg"] is not None:
+            out.append(target("grasp_rms_deg" + suffix, of["grasp_rms_deg"], of["grasp_target_deg"]))
     out += [
         target("overhead_ms_median", summary["overhead_ms_median"], targets.overhead_ms),
         target("compute_ms_median", summary["compute_ms_median"], targets.compute_ms),

@@ -91,6 +91,7 @@ def join_cycles(plc_records: Sequence[dict[str, Any]], journal_rows: Iterable[An
         fault = fault_at.get(index)
         cycles.append({
             "cycle": index,
+            "job": record.get("job"),
             "part_tag": record.get("part_tag"),
             "journal_cycle": None if row is None else row.number,
             "status": status,
