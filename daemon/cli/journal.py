@@ -20,7 +20,16 @@ from monoguide.daemon.cli import _format as fmt
 from monoguide.daemon.cli._console import say, stderr_console, stdout_console
 from monoguide.daemon.cli._policy import reporting_errors
 from monoguide.daemon.errors import CycleWithoutRecord, JournalEntryMissing, JournalError, NoJournal
-from monoguide.daemon.service import JOURNAL_FILE, STATE_DIR_HELP, Journal, JournalRow, OffsetIntent, existing_state_dir
+from monoguide.daemon.service import (
+    JOURNAL_FILE,
+    MAX_PAGE,
+    STATE_DIR_HELP,
+    CycleQuery,
+    Journal,
+    JournalRow,
+    OffsetIntent,
+    existing_state_dir,
+)
 
 app = typer.Typer(
     name="journal",
@@ -33,8 +42,8 @@ app = typer.Typer(
 StateDirOption = Annotated[str | None, typer.Option("--state-dir", help=STATE_DIR_HELP, show_default=False)]
 JsonOption = Annotated[bool, typer.Option("--json", help="JSON on standard output, for machines.")]
 LIST_COLUMNS = (  # header, width (negative: left-aligned)
-    ("cycle", 6), ("finished", -19), ("job", 4), ("tag", 6), ("status", -24), ("rms px", 7), ("rot deg", 8),
-    ("grasp mm", 9), ("base offset x y z mm, a b c deg", -44), ("total s", 8), ("stages s", -1),
+    ("cycle", 6), ("finished", -19), ("job", 4), ("part", -8), ("tag", 6), ("status", -24), ("rms px", 7),
+    ("rot deg", 8), ("grasp mm", 9), ("base offset x y z mm, a b c deg", -44), ("total s", 8), ("stages s", -1),
 )
 
 
@@ -46,11 +55,29 @@ def open_journal(given_state_dir: Path | str | None) -> Journal:
     return Journal(directory, read_only=True)
 
 
+def _cycles_of_job(journal: Journal, job: int, last: int) -> list[JournalRow]:
+    """The ``last`` newest cycles of ``job`` (0: all), newest first, a page at a time through the job's index."""
+    rows: list[JournalRow] = []
+    while not last or len(rows) < last:
+        page = journal.find_cycles(CycleQuery(job=job, before=rows[-1].number if rows else 0,
+                                              limit=min(last - len(rows), MAX_PAGE) if last else MAX_PAGE))
+        rows += page
+        if not page:
+            break
+    return rows
+
+
+def part_name(row: JournalRow) -> str | None:
+    """The part type's name the cycle's record carries (None: a cycle without a record, or before part types)."""
+    return row.record.get("part") if isinstance(row.record, dict) else None
+
+
 def cycle_summary(row: JournalRow) -> dict[str, Any]:
     """The one-line facts of a cycle, as ``journal list --json`` prints them."""
     result = row.result or {}
     return {
         "number": row.number, "started_at": row.started_at, "finished_at": row.finished_at, "job": row.job,
+        "part": part_name(row),
         "part_tag": row.part_tag, "status": row.status, "error_code": row.error_code, "plc_code": row.plc_code,
         "error_message": row.error_message, "rms_px": result.get("rms_px"), "rotation_deg": result.get("rotation_deg"),
         "grasp_shift_mm": result.get("grasp_shift_mm"), "base_offset_xyzabc": result.get("base_offset_xyzabc"),
@@ -65,7 +92,8 @@ def print_cycle_lines(rows: list[JournalRow]) -> None:
     for row in rows:
         s = cycle_summary(row)
         say(out, _columns([
-            str(row.number), fmt.local_time(row.finished_at), fmt.text(row.job), fmt.text(row.part_tag),
+            str(row.number), fmt.local_time(row.finished_at), fmt.text(row.job), fmt.text(part_name(row)),
+            fmt.text(row.part_tag),
             "ok" if row.status == "ok" else f"{row.error_code} ({row.plc_code})", fmt.number(s["rms_px"], 3),
             fmt.number(s["rotation_deg"], 4), fmt.number(s["grasp_shift_mm"], 3), fmt.xyzabc(s["base_offset_xyzabc"]),
             f"{s['duration_s']:.2f}", " ".join(f"{stage} {seconds:.3f}" for stage, seconds in row.timings_s.items()),
@@ -76,13 +104,18 @@ def print_cycle_lines(rows: list[JournalRow]) -> None:
 def list_cycles(
     state_dir: StateDirOption = None,
     last: Annotated[int, typer.Option("--last", help="How many of the newest cycles; 0 for all.", min=0)] = 20,
+    job: Annotated[int | None, typer.Option("--job", help="Only the cycles of this job (part type).", min=1,
+                                            max=65535)] = None,
     json_output: JsonOption = False,
 ) -> None:
-    """One line per cycle, newest last: number, time, job, part tag, status or error code, RMS, rotation,
+    """One line per cycle, newest last: number, time, job, part, part tag, status or error code, RMS, rotation,
     grasp shift, base offset, durations. With --json one object per line."""
     def run() -> None:
         with open_journal(state_dir) as journal:
-            rows = journal.last_cycles(last or max(journal.cycle_counter(), 1))[::-1]
+            if job is None:
+                rows = journal.last_cycles(last or max(journal.cycle_counter(), 1))[::-1]
+            else:
+                rows = _cycles_of_job(journal, job, last)[::-1]
         if json_output:
             _write_lines(json.dumps(cycle_summary(row)) for row in rows)
         else:

@@ -10,6 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 from monoguide.daemon.service._journal import JOURNAL_FILE, CycleEntry, CycleQuery, Journal, JournalRow, OffsetIntent
+from monoguide.daemon.service._journal_query import MAX_PAGE
 from monoguide.daemon.service._state_dir import (
     DEFAULT_STATE_DIR,
     STATE_DIR_HELP,
@@ -27,8 +28,8 @@ from monoguide.daemon.service._status import (
 )
 
 __all__ = [
-    "DEFAULT_STATE_DIR", "JOURNAL_FILE", "STATE_DIR_HELP", "STATUS_FILE", "CellDevices", "CycleEntry", "CycleQuery",
-    "DeviceSlot", "DeviceStatus", "Journal", "JournalRow", "Notifier", "OffsetIntent", "OffsetLedger",
+    "DEFAULT_STATE_DIR", "JOURNAL_FILE", "MAX_PAGE", "STATE_DIR_HELP", "STATUS_FILE", "CellDevices", "CycleEntry",
+    "CycleQuery", "DeviceSlot", "DeviceStatus", "Journal", "JournalRow", "Notifier", "OffsetIntent", "OffsetLedger",
     "ServiceLock", "ServiceStatus", "existing_state_dir", "liveness", "read_status", "run_service", "state_dir",
     "watchdog_interval_s", "write_status",
 ]

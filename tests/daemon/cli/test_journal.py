@@ -296,3 +296,29 @@ def test_resolve_with_the_cells_config_weights_the_views_at_the_flange_as_the_cy
     run = _run("journal", "resolve", "1", "--state-dir", str(tmp_path), "--json")
     (outcome,) = _json_lines(run.stdout)
     assert outcome["difference"]["grasp_point_mm"] > 1e-4  # the other weighting: not the cycle's answer
+
+
+def test_list_by_job_pages_through_the_jobs_index_and_names_the_part(tmp_path: Path) -> None:
+    """1,203 cycles, every third one job 2 ("hood", the rest job 1 "roof"): --job 2 lists exactly the job-2
+    cycles (more than one page of the index's queries), --last counts only them, the part's name is shown."""
+    record = json.loads((Path(__file__).parents[3] / "examples" / "example-record.json").read_text())
+    with Journal(tmp_path) as journal:
+        for number in range(1, 1204):
+            job = 2 if number % 3 == 0 else 1
+            journal.commit_cycle(CycleEntry(started_at=STARTED + number, finished_at=STARTED + number + 1.0, job=job,
+                                            part_tag=number % 65536, record={**record, "job": job,
+                                                                             "part": "hood" if job == 2 else "roof"},
+                                            error=DeviceTimeout("robot: measuring pose 2 not reached")))
+    run = _run("journal", "list", "--state-dir", str(tmp_path), "--job", "2", "--last", "0", "--json")
+    assert run.exit_code == 0, run.output
+    cycles = _json_lines(run.stdout)
+    assert [c["number"] for c in cycles] == list(range(3, 1204, 3))
+    assert {(c["job"], c["part"]) for c in cycles} == {(2, "hood")}
+    run = _run("journal", "list", "--state-dir", str(tmp_path), "--job", "1", "--last", "3", "--json")
+    assert [c["number"] for c in _json_lines(run.stdout)] == [1199, 1201, 1202]
+    table = _run("journal", "list", "--state-dir", str(tmp_path), "--job", "1", "--last", "1").stdout
+    header, *rows = table.splitlines()
+    assert header.split()[:4] == ["cycle", "finished", "job", "part"]
+    assert rows[0].split()[0] == "1202" and rows[0].split()[4] == "roof"  # the time is a date and a time
+    run = _run("journal", "list", "--state-dir", str(tmp_path), "--job", "1", "--last", "0", "--json")
+    assert len(_json_lines(run.stdout)) == 802  # more than a page (500): paged by number
