@@ -14,6 +14,8 @@ on its state directory; five pollers asking for ``/now.json`` once a second, as 
 for one cycle and off for the next, in turn; the medians of the cycles' overhead (the last frame in hand -> the
 offset acknowledged) and of the whole cycle (trigger -> DONE) with and without them.
 
+``index``: the service's open of the journal without the filters' four indexes (made then, once) and with them.
+
 ``memory``: ``--requests`` requests (every page, previews, squares, a chart in fifty) to one server from two
 clients; the server's resident memory sampled every 100 requests; the growth from the first quarter's mean to
 the last's.
@@ -22,6 +24,7 @@ the last's.
     .venv/bin/python benchmarks/bench_web.py latency --rows 100000 --keep
     .venv/bin/python benchmarks/bench_web.py cycle --cycles 16
     .venv/bin/python benchmarks/bench_web.py memory --requests 10000
+    .venv/bin/python benchmarks/bench_web.py index --keep     # the service's first open after an upgrade
 """
 
 from __future__ import annotations
@@ -62,7 +65,7 @@ POLLERS, POLL_S = 5, 1.0
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("what", nargs="*", default=["latency", "cycle", "memory"],
-                        choices=["latency", "cycle", "memory"])
+                        choices=["latency", "cycle", "memory", "index"])
     parser.add_argument("--rows", type=int, default=1_000_000)
     parser.add_argument("--repeats", type=int, default=21)
     parser.add_argument("--cycles", type=int, default=16, help="cycle: cycles of the simulated cell")
@@ -72,6 +75,8 @@ def main() -> None:
     args = parser.parse_args()
     args.dir.mkdir(parents=True, exist_ok=True)
     try:
+        if "index" in args.what:
+            _index(_journal(args.dir, args.rows), args.rows)
         if "latency" in args.what or "memory" in args.what:
             big, peer = _journal(args.dir, args.rows), _journal(args.dir, PEER_ROWS)
         if "latency" in args.what:
@@ -144,6 +149,32 @@ def _day(d: Path, fraction: float, days: int = 0) -> str:
 def _newest(d: Path) -> int:
     with Journal(d, read_only=True) as journal:
         return journal.cycle_counter()
+
+
+# --- the filters' indexes created on a journal written before them ------------------------------------------
+
+
+def _index(state_dir: Path, rows: int) -> None:
+    """The service's open of a journal without the filters' indexes (they are made then) against its open of the
+    same journal with them."""
+    names = ("cycle_status", "cycle_error_code", "cycle_job", "cycle_finished")
+    with_them = []
+    for _ in range(3):
+        start = time.perf_counter()
+        Journal(state_dir).close()
+        with_them.append(time.perf_counter() - start)
+    db = sqlite3.connect(state_dir / JOURNAL_FILE)
+    for name in names:
+        db.execute(f"DROP INDEX {name}")
+    db.commit()
+    db.close()
+    start = time.perf_counter()
+    Journal(state_dir).close()
+    making = time.perf_counter() - start
+    print()
+    print(f"the service's open of a {rows:,}-row journal, s")
+    print(f"{'with the filters indexes':<40}{statistics.median(with_them):>10.3f}")
+    print(f"{'without them (they are made)':<40}{making:>10.3f}")
 
 
 # --- the cycle with and without pollers -----------------------------------------------------------------------
