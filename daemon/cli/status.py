@@ -72,11 +72,12 @@ def _as_json(report: dict[str, Any]) -> dict[str, Any]:
 
 
 def _last_result(result: dict[str, Any]) -> str:
-    """``cycle 12 ok, job 1, part tag 7, finished 14:02:31`` (the error code only when there is one)."""
+    """``cycle 12 ok, job 1, part roof, part tag 7, finished 14:02:31`` (the error code only when there is one)."""
     words = [f"cycle {result.get('cycle')} {result.get('status')}"]
     if result.get("error_code"):
         words[0] += f" {result['error_code']}"
-    words += [f"{key.replace('_', ' ')} {result[key]}" for key in ("job", "part_tag") if result.get(key) is not None]
+    words += [f"{key.replace('_', ' ')} {result[key]}" for key in ("job", "part", "part_tag")
+              if result.get(key) is not None]
     if isinstance(result.get("finished_at"), int | float):
         words.append(f"finished {fmt.local_time(result['finished_at'])}")
     return ", ".join(words)

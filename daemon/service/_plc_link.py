@@ -86,7 +86,8 @@ class Shown:
 
 def summary(row: Any) -> dict[str, Any]:
     """A journal row as the status file's ``last_result``."""
-    return {"cycle": row.number, "status": row.status, "job": row.job, "part_tag": row.part_tag,
+    part = row.record.get("part") if isinstance(row.record, dict) else None
+    return {"cycle": row.number, "status": row.status, "job": row.job, "part": part, "part_tag": row.part_tag,
             "error_code": row.error_code, "finished_at": row.finished_at}
 
 

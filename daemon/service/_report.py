@@ -52,9 +52,11 @@ class CycleReport:
             return
         self.shown.finished += 1
         self.shown.result = result_registers(outcome, number, inputs)
+        record = getattr(outcome.measurement, "record", None)
+        part = record.get("part") if isinstance(record, dict) else None  # None: no part measured (unknown job ...)
         self.shown.last_result = {"cycle": number, "status": "error" if error else "ok", "job": inputs.job,
-                                  "part_tag": inputs.part_tag, "error_code": error.code if error else None,
-                                  "finished_at": time.time()}
+                                  "part": part, "part_tag": inputs.part_tag,
+                                  "error_code": error.code if error else None, "finished_at": time.time()}
         if isinstance(error, RobotOffsetUnconfirmed) and machine.can(Cause.OFFSET_UNCONFIRMED):
             machine.fire(Cause.OFFSET_UNCONFIRMED, error=error)  # FAULT: register 11 = 429, 13 = this cycle
         if machine.state is not State.REPORTING:  # FAULT already: register 11 shows the fault's code,

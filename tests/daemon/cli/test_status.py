@@ -96,3 +96,7 @@ def test_last_result_reads_as_words_and_a_clock_time(tmp_path: Path) -> None:
     assert "None" not in run.stdout
     _status(tmp_path, last_result={"cycle": 13, "status": "error", "error_code": "PLC_TRIGGER_DROPPED"})
     assert "last result: cycle 13 error PLC_TRIGGER_DROPPED" in _run(tmp_path).stdout
+    _status(tmp_path, last_result={"cycle": 14, "status": "ok", "job": 2, "part": "hood", "part_tag": 8,
+                                   "finished_at": finished})
+    shown = _run(tmp_path).stdout
+    assert "last result: cycle 14 ok, job 2, part hood, part tag 8, finished 2026-11-23 14:02:31" in shown

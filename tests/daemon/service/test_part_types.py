@@ -89,3 +89,6 @@ async def test_each_job_measures_its_own_part_and_an_unknown_job_moves_nothing(c
     assert [r.record["part"] for r in (rows[0], rows[1], rows[3])] == ["roof", "hood", "roof"]
     assert len(rows[1].record["points_w"]) == 6 and len(rows[1].record["views"]) == 3
     assert len(rows[1].record["observations"]) == 6 and len(rows[0].record["observations"]) == 4
+    status = json.loads((state_dir / "status.json").read_text())
+    assert {k: status["last_result"][k] for k in ("cycle", "job", "part", "part_tag")} == {
+        "cycle": 4, "job": 1, "part": "roof", "part_tag": 14}
