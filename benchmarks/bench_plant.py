@@ -3,17 +3,20 @@ clients, the plant's memory over 10,000 cycles' events. Prints tables; asserts n
 
 ``cycles``: ``monoguide sim-cell`` (its PLC plays parts without end), ``monoguide run --cycles N`` and ``monoguide
 plant`` on one state directory, each its own process, and one asyncua client (Sign & Encrypt, a user) subscribed to
-the result events from the start. In blocks of ``--block`` cycles, 20 more clients (each its own session and
-subscription to the events and to the state) are connected and then disconnected again, alternately; a cycle counts
-for "with 20 clients" when it started after all 20 were connected and finished before the first left, for "without"
-when no extra client was connected during it. Latency: the event's arrival at the client minus the row's
-``finished_at`` (taken just before the journal's commit, so the commit's own fsync counts against the plant).
+the result events from the start. 20 more clients alternate, in blocks of ``--block`` cycles, between subscribed
+(each a subscription to the result events and one to the state) and not: with ``--toggle subscriptions`` (default)
+their 20 sessions stay connected and only the subscriptions are made and deleted, so the blocks can be short and the
+two conditions see the same load of the shared machine; with ``--toggle sessions`` the clients connect and
+disconnect. A cycle counts for a condition when it started after the change to it was complete and its event
+arrived before the next change began. Latency: the event's arrival at the client minus the row's ``finished_at``
+(taken just before the journal's commit, so the commit's own fsync counts against the plant).
 
 ``memory``: ``monoguide plant`` on a journal replayed by the real ``Journal`` (``--events`` rows committed at
 ``--rate`` per second, each a realistic small row), one client subscribed counting the events; the plant's resident
 memory (``/proc/<pid>/status`` VmRSS) after every tenth of them.
 
-    .venv/bin/python benchmarks/bench_plant.py cycles --cycles 60 --block 10     # ~4 min
+    .venv/bin/python benchmarks/bench_plant.py cycles --cycles 80 --block 2      # ~5 min
+    .venv/bin/python benchmarks/bench_plant.py cycles --cycles 72 --block 12 --toggle sessions
     .venv/bin/python benchmarks/bench_plant.py memory --events 10000             # ~2 min
     .venv/bin/python benchmarks/bench_plant.py journal --rows 10000 100000 1000000   # ~7 GB in /tmp, ~6 min
     .venv/bin/python benchmarks/bench_plant.py browse                            # a session's browse tree
@@ -62,7 +65,10 @@ def main() -> None:
     sub = parser.add_subparsers(dest="what", required=True)
     cycles = sub.add_parser("cycles")
     cycles.add_argument("--cycles", type=int, default=60)
-    cycles.add_argument("--block", type=int, default=10)
+    cycles.add_argument("--block", type=int, default=2)
+    cycles.add_argument("--toggle", choices=("subscriptions", "sessions"), default="subscriptions",
+                        help="what comes and goes between blocks: the 20 clients' subscriptions (their sessions stay "
+                             "connected) or the clients themselves")
     cycles.add_argument("--config", type=Path, default=Path("config/sim-cell.toml"))
     cycles.add_argument("--verbose", action="store_true", help="print the windows and each cycle's times")
     memory = sub.add_parser("memory")
@@ -76,7 +82,7 @@ def main() -> None:
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench-plant-") as tmp:
         if args.what == "cycles":
-            asyncio.run(_cycles(Path(tmp), args.config, args.cycles, args.block))
+            asyncio.run(_cycles(Path(tmp), args.config, args.cycles, args.block, args.toggle))
         elif args.what == "browse":
             asyncio.run(_browse(Path(tmp)))
         elif args.what == "journal":
@@ -88,7 +94,7 @@ def main() -> None:
 # --- cycles: latency and overhead ---------------------------------------------------------------
 
 
-async def _cycles(tmp: Path, config_path: Path, cycles: int, block: int) -> None:
+async def _cycles(tmp: Path, config_path: Path, cycles: int, block: int, toggle: str) -> None:
     config = cheaper_config(config_path, tmp, 0.05, True, ROBOT_HOST)
     state_dir, clients = _state_dir(tmp)
     plant, line = start_plant(config, state_dir, plant_file(tmp / "plant.toml", PLANT_HOST, PLANT_PORT),
@@ -104,24 +110,23 @@ async def _cycles(tmp: Path, config_path: Path, cycles: int, block: int) -> None
             sys.executable, "-m", "monoguide.daemon.cli", "run", "--config", str(config), "--state-dir",
             str(state_dir), "--cycles", str(cycles), stdout=asyncio.subprocess.DEVNULL,
             stderr=asyncio.subprocess.DEVNULL)
-        condition_from, sessions = time.time(), []
+        extra = _ExtraClients(url, clients[1:], toggle)
+        if toggle == "subscriptions":  # the 20 sessions stay connected; their subscriptions come and go
+            await extra.connect()
+        condition_from = time.time()
         while service.returncode is None:
             wanted = len(log.events) // block % 2 == 1  # blocks without, with, without, ... the extra clients
-            if wanted != bool(sessions):
-                windows.append(("with" if sessions else "without", condition_from, time.time()))
-                if sessions:
-                    await _disconnect(sessions)
-                    sessions = []
-                else:
-                    connecting = time.monotonic()
-                    sessions = await _connect_many(url, clients[1:])
-                    print(f"{len(sessions)} clients connected and subscribed in {time.monotonic() - connecting:.1f} s",
-                          flush=True)
+            if wanted != extra.on:
+                windows.append(("with" if extra.on else "without", condition_from, time.time()))
+                changing = time.monotonic()
+                await (extra.stop() if extra.on else extra.start())
+                print(f"{EXTRA_CLIENTS} clients' {toggle} {'on' if extra.on else 'off'} in "
+                      f"{time.monotonic() - changing:.1f} s", flush=True)
                 condition_from = time.time()
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(service.wait(), 0.2)
-        windows.append(("with" if sessions else "without", condition_from, time.time()))
-        await _disconnect(sessions)
+                await asyncio.wait_for(service.wait(), 0.1)
+        windows.append(("with" if extra.on else "without", condition_from, time.time()))
+        await extra.close()
         await log.wait_for(cycles, 30.0)
         await watcher.disconnect()
     finally:
@@ -130,21 +135,6 @@ async def _cycles(tmp: Path, config_path: Path, cycles: int, block: int) -> None
     with Journal(state_dir, read_only=True) as journal:
         rows = {row.number: row for row in journal.last_cycles(cycles + 10)}
     _print_cycles(log.events, rows, windows)
-
-
-async def _connect_many(url: str, identities: list[Any]) -> list[Any]:
-    sessions = []
-    for identity in identities:
-        client = await connected(url, identity, user=USER, password=PASSWORD)
-        await subscribe_results(client)
-        idx = await client.get_namespace_index(NAMESPACE)
-        from asyncua import ua
-
-        subscription = await client.create_subscription(100, _Ignored())
-        machine = client.get_node(ua.NodeId("VisionSystem.VisionStateMachine", idx))
-        await subscription.subscribe_data_change(await machine.get_child("0:CurrentState"))
-        sessions.append(client)
-    return sessions
 
 
 class _Ignored:
@@ -160,9 +150,57 @@ class _Ignored:
         pass
 
 
-async def _disconnect(sessions: list[Any]) -> None:
-    for client in sessions:
-        await client.disconnect()
+class _ExtraClients:
+    """The 20 clients of the comparison: with ``toggle`` "sessions" each block connects and disconnects them (and
+    their subscriptions), with "subscriptions" they stay connected and only their subscriptions (to the result events
+    and to the state) are made and deleted."""
+
+    def __init__(self, url: str, identities: list[Any], toggle: str) -> None:
+        self.url, self.identities, self.toggle = url, identities, toggle
+        self.sessions: list[Any] = []
+        self.subscriptions: list[Any] = []
+
+    @property
+    def on(self) -> bool:
+        return bool(self.subscriptions)
+
+    async def connect(self) -> None:
+        for identity in self.identities:
+            self.sessions.append(await connected(self.url, identity, user=USER, password=PASSWORD))
+
+    async def start(self) -> None:
+        from asyncua import ua
+
+        if self.toggle == "sessions":
+            await self.connect()
+        from asyncua.common.events import get_filter_from_event_type
+
+        first = self.sessions[0]
+        idx = await first.get_namespace_index(NAMESPACE)
+        base_event = first.get_node(ua.NodeId(ua.ObjectIds.BaseEventType))
+        event_type = await base_event.get_child(f"{idx}:ResultReadyEventType")
+        event_filter = await get_filter_from_event_type([event_type])  # browsed once: the same filter for all 20
+        machine = first.get_node(ua.NodeId("VisionSystem.VisionStateMachine", idx))
+        current_state = (await machine.get_child("0:CurrentState")).nodeid
+        for client in self.sessions:
+            events = await client.create_subscription(50, _Ignored())
+            await events.subscribe_events(client.get_node(ua.NodeId("VisionSystem", idx)), event_type.nodeid,
+                                          evfilter=event_filter)
+            state = await client.create_subscription(100, _Ignored())
+            await state.subscribe_data_change(client.get_node(current_state))
+            self.subscriptions += [events, state]
+
+    async def stop(self) -> None:
+        for subscription in self.subscriptions:
+            await subscription.delete()
+        self.subscriptions = []
+        if self.toggle == "sessions":
+            await self.close()
+
+    async def close(self) -> None:
+        for client in self.sessions:
+            await client.disconnect()
+        self.sessions, self.subscriptions = [], []
 
 
 def _print_cycles(events: list[tuple[float, dict[str, Any]]], rows: dict[int, Any],
