@@ -86,7 +86,7 @@ def main() -> None:
         if "memory" in args.what:
             _memory(peer, args.requests)
     finally:
-        if not args.keep:
+        if not args.keep and set(args.what) & {"latency", "memory", "index"}:  # `cycle` alone builds no journal
             shutil.rmtree(args.dir, ignore_errors=True)
 
 

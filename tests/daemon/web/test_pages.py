@@ -137,7 +137,7 @@ def test_now_json_has_the_counter_and_the_last_cycle(prepared: Prepared) -> None
 
 def test_trends_and_calibration_pages_answer(prepared: Prepared) -> None:
     for chart in ("offset", "quality", "errors"):
-        answer = request(HOST, PORT, f"/trends/{chart}.png?last=50")
+        answer = request(HOST, PORT, f"/trends/{chart}.png?last=50", timeout_s=90.0)  # matplotlib's first figure
         assert answer.status == 200 and answer.body[:8] == b"\x89PNG\r\n\x1a\n", chart
     assert _get("/trends?last=0")[0] == 400
     status, html = _get("/calibration")
