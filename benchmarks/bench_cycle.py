@@ -24,6 +24,7 @@ acknowledgement polled every 10 ms, with ``--images`` the last PNG written befor
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import signal
 import statistics
@@ -32,6 +33,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -62,17 +64,8 @@ def main() -> int:
         tmp = Path(folder)
         config_path = cheaper_config(args.config, tmp, args.move_time, args.sharp, args.host)
         truth_log = tmp / "truth.jsonl"
-        process = subprocess.Popen([sys.executable, "-m", "monoguide.daemon.cli", "sim-cell", "--config",
-                                    str(config_path), "--no-plc", "--truth-log", str(truth_log)],
-                                   stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-        try:
-            _wait_started(process)
+        with sim_cell(config_path, truth_log):
             timings = _run(config_path, args.cycles, tmp / "images" if args.images else None, args.compare)
-        finally:
-            process.send_signal(signal.SIGTERM)
-            process.wait(15)
-            assert process.stdout is not None
-            process.stdout.close()
         parts = [json.loads(line) for line in truth_log.read_text().splitlines()]
     if args.compare:
         _print_compare(timings[0::2], timings[1::2])
@@ -100,6 +93,22 @@ def cheaper_config(path: Path, tmp: Path, move_time: float | None, sharp: bool, 
     out = tmp / "cell.toml"
     out.write_text("\n".join(lines) + "\n")
     return out
+
+
+@contextlib.contextmanager
+def sim_cell(config_path: Path, truth_log: Path, *options: str) -> Iterator[None]:
+    """``monoguide sim-cell --no-plc`` on the config (its truth log at ``truth_log``) while the block runs."""
+    process = subprocess.Popen([sys.executable, "-m", "monoguide.daemon.cli", "sim-cell", "--config", str(config_path),
+                                "--no-plc", "--truth-log", str(truth_log), *options],
+                               stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        _wait_started(process)
+        yield
+    finally:
+        process.send_signal(signal.SIGTERM)
+        process.wait(15)
+        assert process.stdout is not None
+        process.stdout.close()
 
 
 def _wait_started(process: subprocess.Popen[str]) -> None:

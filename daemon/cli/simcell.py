@@ -26,10 +26,10 @@ from typing import Annotated
 
 import typer
 
+from monoguide.daemon.cli._options import job_numbers
 from monoguide.daemon.cli._policy import fail
 from monoguide.daemon.config import CellConfig, load_cell_config
 from monoguide.daemon.simulate import FAULT_COMMANDS, ROBOT_ACTIONS, SimulatedCell
-from monoguide.drivers.errors import ConfigError
 from monoguide.solver.errors import MonoguideError
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -64,7 +64,7 @@ def sim_cell(
         try:
             cfg = load_cell_config(config)
             with SimulatedCell.start(cfg, config, state_file, plc=not no_plc, truth_log=truth_log,
-                                     parts=parts, part_types=_part_types(part_types)) as cell:
+                                     parts=parts, part_types=job_numbers("--part-types", part_types)) as cell:
                 _say_where(cfg, cell, parts)
                 cell.serve(lambda: stop.signum != 0, typer.echo)
                 typer.echo(f"stopping ({signal.Signals(stop.signum).name})", err=True)
@@ -73,15 +73,6 @@ def sim_cell(
 
 
 # --- private -----------------------------------------------------------------------------------
-
-
-def _part_types(text: str | None) -> tuple[int, ...]:
-    if text is None:
-        return ()
-    try:
-        return tuple(int(v) for v in text.split(","))
-    except ValueError:
-        raise ConfigError(f"--part-types {text!r}: expected job numbers separated by commas, e.g. 1,2,2,1") from None
 
 
 class _Stop:

@@ -24,6 +24,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsed
 from rich.progress import Progress as RichProgress
 
 from monoguide.daemon.cli._console import say, stderr_console, stdout_console
+from monoguide.daemon.cli._options import job_numbers
 from monoguide.daemon.cli._policy import EXIT_INTERRUPTED, fail
 from monoguide.daemon.cli._policy import report as report_error
 from monoguide.daemon.cli._web_child import hold_until_interrupted, start_web_page
@@ -99,7 +100,7 @@ def simulate(
     work = Path(work_dir) if work_dir is not None else Path(tempfile.mkdtemp(prefix="monoguide-simulate-"))
     keep = work_dir is not None
     options = RunOptions(config or default_config(), work, cycles, seed, robot, perfect_robot, faults, host, names,
-                         calibration, _jobs(jobs))
+                         calibration, _job_numbers(jobs))
     page = start_web_page(web, work / "state", options.config)  # --web: the page, until the command ends
     try:
         with _progress(err, cycles) as progress:
@@ -137,13 +138,11 @@ def simulate(
 # --- private ------------------------------------------------------------------------------------
 
 
-def _jobs(text: str | None) -> tuple[int, ...]:
-    if text is None:
-        return ()
+def _job_numbers(text: str | None) -> tuple[int, ...]:
     try:
-        return tuple(int(v) for v in text.split(","))
-    except ValueError:
-        fail(ConfigError(f"--jobs {text!r}: expected job numbers separated by commas, e.g. 1,2"))
+        return job_numbers("--jobs", text)
+    except ConfigError as error:
+        fail(error)
 
 
 def _summary(result: RunResult, perfect_robot: bool) -> tuple[list[dict[str, Any]], dict[str, Any]]:

@@ -15,7 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from helpers.sim_processes import start_sim_cell, stop
+from helpers.sim_processes import alive, start_sim_cell, stop
 from typer.testing import CliRunner
 
 from monoguide.daemon.assembly import build_sim_cell
@@ -135,9 +135,9 @@ def test_sim_cell_serves_the_tracker_to_probe_and_stops_clean(sim_cell: tuple, t
     assert process.wait(10) == 0
     assert not state.exists()
     deadline = time.monotonic() + 5
-    while time.monotonic() < deadline and _alive(tracker_pid):
+    while time.monotonic() < deadline and alive(tracker_pid):
         time.sleep(0.05)
-    assert not _alive(tracker_pid), "sim-cell left its tracker process behind"
+    assert not alive(tracker_pid), "sim-cell left its tracker process behind"
 
 
 def test_probe_tracker_on_a_dead_device_fails_clearly(sim_cell: tuple) -> None:
@@ -149,18 +149,6 @@ def test_probe_tracker_on_a_dead_device_fails_clearly(sim_cell: tuple) -> None:
     finally:
         os.kill(tracker_pid, signal.SIGCONT)
     assert result.exit_code == 1 and "DEVICE_TIMEOUT" in result.output
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    # a zombie still answers kill(0); its state letter tells
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z"
-    except OSError:
-        return False
 
 
 def test_config_errors_name_the_section_key_and_value(tmp_path: Path) -> None:
