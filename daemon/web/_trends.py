@@ -111,12 +111,12 @@ def _quality(figure: Any, rows: list[JournalRow]) -> None:
     ]
     for k, (ax, (title, pick)) in enumerate(zip(axes, panels, strict=True)):
         x, y = _series(rows, pick)
-        ax.plot(x, y, ".-", markersize=3, linewidth=0.8, color=figures.SERIES[k])
+        ax.plot(x, y, ".-", markersize=3, linewidth=0.8, color=figures.MM if k == 2 else figures.SERIES[k])
         ax.set_title(title)
     x, y = _series(rows, lambda r: None if (r.result or {}).get("sigma_rot_deg") is None
                    else 10 * r.result["sigma_rot_deg"])  # type: ignore[index]
     axes[2].plot(x, y, ".-", markersize=3, linewidth=0.8, color=figures.DEG, label="sigma rotation x10, deg")
-    axes[2].plot([], [], ".-", color=figures.SERIES[2], label="sigma position, mm")
+    axes[2].plot([], [], ".-", color=figures.MM, label="sigma position, mm")
     figures.legend(axes[2])
     for ax in axes[2:]:
         ax.set_xlabel("cycle")
