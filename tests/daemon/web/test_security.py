@@ -6,6 +6,7 @@ page, the process keeps serving)."""
 from __future__ import annotations
 
 import contextlib
+import http.client
 import re
 import subprocess
 import sys
@@ -191,3 +192,40 @@ def _basic(name: str, password: str) -> str:
     import base64
 
     return "Basic " + base64.b64encode(f"{name}:{password}".encode()).decode()
+
+
+def test_https_with_a_given_certificate(tmp_path: Path, prepared: Prepared) -> None:
+    """--certfile/--keyfile: the page over TLS (a self-signed certificate made here by openssl), nothing in clear."""
+    import shutil
+    import ssl
+
+    if shutil.which("openssl") is None:
+        pytest.fail("openssl is needed to make the test's certificate")
+    cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
+    subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", str(key), "-out",
+                    str(cert), "-days", "2", "-subj", "/CN=127.0.22.6"], check=True, capture_output=True)
+    host, port = "127.0.22.6", 8227
+    process = subprocess.Popen([sys.executable, "-m", "monoguide.daemon.cli", "web", "--state-dir",
+                                str(prepared.state_dir), "--bind", f"{host}:{port}", "--certfile", str(cert),
+                                "--keyfile", str(key)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        context = ssl.create_default_context(cafile=str(cert))
+        context.check_hostname = False
+        deadline = time.monotonic() + 30
+        while True:
+            try:
+                connection = http.client.HTTPSConnection(host, port, timeout=5, context=context)
+                connection.request("GET", "/now.json")
+                answer = connection.getresponse()
+                assert answer.status == 200 and b"cycle_counter" in answer.read()
+                connection.close()
+                break
+            except (ConnectionRefusedError, ssl.SSLError):
+                assert time.monotonic() < deadline, "no TLS answer"
+                time.sleep(0.2)
+        with pytest.raises((http.client.HTTPException, ConnectionError, OSError)):
+            plain = request(host, port, "/now.json", timeout_s=5)
+            assert plain.status != 200  # a plain-HTTP request gets no page
+    finally:
+        process.terminate()
+        process.wait(15)
