@@ -31,7 +31,7 @@ def cycle_facts(journal: Journal, number: int, config: CellConfig | None) -> dic
     """Everything the page shows of cycle ``number`` (:class:`JournalEntryMissing` when there is none)."""
     row = journal.cycle(number)
     intent = journal.intent(number)
-    marks = view_marks(row.record, row.result, config, len(row.image_paths))
+    marks = view_marks(row.record, row.result, part_config(config, row.job), len(row.image_paths))
     views = [_view_page(journal, row, m) for m in marks]
     return {
         "row": row, "meaning": meaning(row.error_code), "views": views, "origin": IMAGE_ORIGIN,
@@ -48,7 +48,7 @@ def cycle_facts(journal: Journal, number: int, config: CellConfig | None) -> dic
 def hole_crop(row: JournalRow, config: CellConfig | None, view: int, point: int) -> tuple[ViewMarks, HoleMark,
                                                                                           tuple[int, int, int, int]]:
     """The marks and the square of hole ``point`` in ``view`` (``LookupError`` when the view does not have it)."""
-    marks = view_marks(row.record, row.result, config, len(row.image_paths))
+    marks = view_marks(row.record, row.result, part_config(config, row.job), len(row.image_paths))
     if not 0 <= view < len(marks):
         raise LookupError(f"cycle {row.number} has no view {view + 1}")
     for hole in marks[view].holes:
@@ -57,6 +57,14 @@ def hole_crop(row: JournalRow, config: CellConfig | None, view: int, point: int)
             if box is not None:
                 return marks[view], hole, box
     raise LookupError(f"cycle {row.number} view {view + 1}: no hole P{point + 1} with a centre")
+
+
+def part_config(config: CellConfig | None, job: int | None) -> CellConfig | None:
+    """The cell as the cycle's part type sees it (its holes, names, poses: ``CellConfig.for_job``); the cell's
+    own for a job the config does not have (a journal of another config), None without a config."""
+    if config is None or job is None or job not in config.jobs:
+        return config
+    return config.for_job(job)
 
 
 # --- private ------------------------------------------------------------------------------------
