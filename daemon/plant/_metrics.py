@@ -80,8 +80,10 @@ class PlantMetrics:
             self._server.server_close()
             self._server = None
 
-    def seed(self, counts: dict[tuple[str, str | None], int], newest_first: list[CycleResult]) -> None:
-        """The journal's totals at start, and the gauges of its newest cycles."""
+    def seed(self, counts: dict[tuple[str, str | None], int], newest_first: list[CycleResult], counter: int) -> None:
+        """The journal's totals and cycle counter at start, and the gauges of its newest cycles (a scrape before the
+        first poll already shows the journal as it is)."""
+        self.journal_cycles.set(counter)
         for (status, code), n in counts.items():
             self.cycles.labels(status=status, error_code=code or NO_ERROR).inc(n)
         for result in reversed(newest_first):

@@ -77,7 +77,7 @@ async def serve_plant(config: Any, settings: PlantSettings, state_dir: Path, sto
         # the journal is read in a worker thread: a read that waits on SQLite (a checkpoint of the service's WAL,
         # a busy file) must never hold up the OPC UA server's loop and its clients' requests
         newest, counts = await asyncio.to_thread(view.start, settings.last_results)
-        metrics.seed(counts, newest)
+        metrics.seed(counts, newest, view.seen)
         await opcua.seed(newest)
         if on_ready is not None:
             on_ready(PlantEndpoints(opcua.url, metrics_url, identity))

@@ -357,7 +357,7 @@ class Service:
             write_status(self.state_dir, ServiceStatus(
                 self.machine.state.value, self.since, os.getpid(), time.time(), STATUS_FILE_PERIOD_S, devices,
                 self.shown.last_result, None if fault is None else {"code": fault.code, "plc_code": fault.plc_code,
-                                                                    "message": fault.message}))
+                                                                    "message": fault.message}, self.link.registers()))
         except OSError as exc:
             log.warning("status file: cannot write in %s: %s", self.state_dir, exc)
 

@@ -154,6 +154,8 @@ class PlcLink:
         self.fault_shown: MonoguideError | None = None  # the fault whose code register 11 shows
         self.numbering_checked = False  # a new journal continues after the PLC's register 13 (first connect)
         self._next_beat = self._next_refresh = 0.0
+        self.inputs: PlcInputs | None = None  # registers 0-3 as last read
+        self.heartbeat: int | None = None  # register 12 as last written
 
     @property
     def address(self) -> str:
@@ -178,16 +180,26 @@ class PlcLink:
                 await self.plc.close()
             return False
         self.connected, self.attempts, self.error = True, 0, None
-        self.word, self._next_beat = Status(0), now
+        self.word, self._next_beat, self.inputs = Status(0), now, inputs
         self.latch.connected(inputs.control)
         return True
+
+    def registers(self) -> dict[str, Any] | None:
+        """What the PLC and monoguide show each other now (the status file's ``plc``): the control word's bits,
+        job, PLC heartbeat and part tag as last read (registers 0-3), the status word's bits and monoguide's
+        heartbeat as last written (10, 12); None while not connected."""
+        if not self.connected or self.inputs is None:
+            return None
+        i = self.inputs
+        return {"control": _bits(Control, int(i.control)), "job": i.job, "plc_heartbeat": i.plc_heartbeat,
+                "part_tag": i.part_tag, "status": _bits(Status, int(self.word or 0)), "heartbeat": self.heartbeat}
 
     async def read(self, now: float) -> PlcInputs:
         """Registers 0-3; the heartbeat and the status word's refresh when due. A :class:`DeviceError` when the
         connection is gone (the caller calls :meth:`lost`)."""
-        inputs = await self.plc.read_inputs()
+        inputs = self.inputs = await self.plc.read_inputs()
         if now >= self._next_beat:
-            await self.plc.beat()
+            self.heartbeat = await self.plc.beat()
             self._next_beat = now + HEARTBEAT_PERIOD_S
         if now >= self._next_refresh and self.word is not None:
             await self.plc.write_status(self.word)  # unchanged: what the PLC reads is always ours
@@ -237,3 +249,9 @@ class PlcLink:
                             "showed", self.journal.path, counter)
                 shown.result = dataclasses.replace(shown.result, cycle_counter=counter)
         self.numbering_checked = True
+
+
+def _bits(flags: type[Control] | type[Status], word: int) -> list[str]:
+    """The names of the bits set in ``word``, in register order (an undefined bit as ``bit N``)."""
+    names = [flag.name or "" for flag in flags if word & flag.value]
+    return names + [f"bit {n}" for n in range(16) if word & (1 << n) and not any(f.value == 1 << n for f in flags)]

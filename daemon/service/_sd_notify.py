@@ -43,11 +43,12 @@ class Notifier:
 
     def send(self, message: str) -> bool:
         """Send one message; True when it left. A failure is logged, never raised: a missed ping is the
-        watchdog's business, and the service must not die of its supervisor restarting."""
+        watchdog's business, and the service must not die of its supervisor restarting. Never blocks: a
+        receiver whose queue is full (not reading) loses the message rather than stopping the service's loop."""
         if self.address is None:
             return False
         try:
-            with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC) as sock:
+            with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC | socket.SOCK_NONBLOCK) as sock:
                 sock.connect(self.address)
                 sock.sendall(message.encode())
         except OSError as exc:

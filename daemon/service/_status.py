@@ -48,6 +48,7 @@ class ServiceStatus:
     devices: dict[str, DeviceStatus] = field(default_factory=dict)
     last_result: dict[str, Any] | None = None  # {"cycle", "status", "error_code", "finished_at", ...}
     fault: dict[str, Any] | None = None  # while latched: {"code", "plc_code", "message"} of what latched FAULT
+    plc: dict[str, Any] | None = None  # the PLC registers as last read and written (PlcLink.registers); None: none
 
     def as_dict(self) -> dict[str, Any]:
         return {"format": FORMAT, **asdict(self)}
@@ -134,11 +135,12 @@ def _parse(path: Path, data: Any) -> ServiceStatus:
     last_result = data.get("last_result")
     if last_result is not None and not isinstance(last_result, dict):
         raise bad(f"last_result: expected an object or null, got {last_result!r}")
-    fault = data.get("fault")
-    if fault is not None and not isinstance(fault, dict):
-        raise bad(f"fault: expected an object or null, got {fault!r}")
+    fault, plc = data.get("fault"), data.get("plc")
+    for key, value in (("fault", fault), ("plc", plc)):
+        if value is not None and not isinstance(value, dict):
+            raise bad(f"{key}: expected an object or null, got {value!r}")
     return ServiceStatus(data["state"], times["since"], pid, times["updated_at"], times["heartbeat_s"], parsed,
-                         last_result, fault)
+                         last_result, fault, plc)
 
 
 def _pid_alive(pid: int) -> bool:

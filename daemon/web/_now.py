@@ -2,9 +2,9 @@
 last result with its error explained, the cycle counter, the calibration's age — one dict, rendered as HTML
 and sent as JSON to the page's polling script.
 
-``status.json`` has no PLC registers; what the page shows of the PLC is the service's link to it (connected, its
-last error) and the service's heartbeat as the status file shows it (rewritten every ``heartbeat_s`` while the
-loop runs; the loop that writes it also beats PLC register 12).
+The PLC: the service's link to it (connected, its last error) and the registers the status file's ``plc`` holds, as
+the service last read and wrote them (control bits, job, part tag and the PLC's heartbeat, registers 0-3; the status
+bits and monoguide's heartbeat, registers 10 and 12), at most ``heartbeat_s`` old.
 """
 
 from __future__ import annotations
@@ -68,7 +68,7 @@ def _service(source: StateSource, now: float) -> dict[str, Any]:
         "status_age_s": round(now - status.updated_at, 1), "heartbeat_s": status.heartbeat_s,
         "devices": {name: {"connected": d.connected, "last_error": d.last_error}
                     for name, d in status.devices.items()},
-        "last_result": last, "fault": fault,
+        "last_result": last, "fault": fault, "plc": status.plc,
     })
     return out
 

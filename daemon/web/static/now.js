@@ -24,6 +24,12 @@
       const c = row.insertCell(); c.textContent = d.connected ? "connected" : "NOT connected"; c.className = d.connected ? "ok" : "bad";
       row.insertCell().textContent = d.last_error ? d.last_error.code + ": " + d.last_error.message : "";
     }
+    const plc = s.plc, registers = byId("plc-registers");
+    if (registers) {
+      registers.textContent = plc ? "PLC control " + (plc.control.join(" ") || "-") + ", job " + plc.job + ", part tag " +
+        plc.part_tag + ", PLC heartbeat " + plc.plc_heartbeat + "; status " + (plc.status.join(" ") || "-") +
+        ", heartbeat " + (plc.heartbeat == null ? "-" : plc.heartbeat) : "PLC registers: not connected";
+    }
     byId("fault-panel").hidden = !s.fault;
     text("fault-code", s.fault ? s.fault.code : ""); text("fault-plc", s.fault ? s.fault.plc_code : "");
     text("fault-message", s.fault ? s.fault.message : ""); text("fault-meaning", s.fault ? s.fault.meaning : "");

@@ -186,18 +186,31 @@ async def test_systemd_notifications_and_status_file(tmp_path: Path, monkeypatch
     monkeypatch.setenv("WATCHDOG_PID", str(os.getpid()))
     stand_in = StandIn()
     stand_in.release.set()
+    messages: list[str] = []
+
+    def drain() -> None:  # as systemd does: the socket's queue holds 10 datagrams, a full one loses messages
+        with contextlib.suppress(BlockingIOError):
+            while True:
+                messages.append(sock.recv(4096).decode())
+
     async with service_on_line(tmp_path, "127.0.5.6", stand_in) as (line, _service, _stop):
         await asyncio.sleep(0.5)
         status = read_status(tmp_path / "state")
         assert status is not None and status.state == "idle" and liveness(status).running
         assert status.devices["plc"].connected
+        assert status.plc is not None and status.plc["status"] == ["READY"] and status.plc["control"] == []
         await line.control(Control.TRIGGER, tag=31)
         await line.wait(lambda s: Status.DONE in s, "DONE")
+        for _ in range(13):  # the status file is rewritten at least once a second
+            await asyncio.sleep(0.1)
+            drain()
+        plc = read_status(tmp_path / "state").plc  # type: ignore[union-attr]
+        assert plc is not None and (plc["control"], plc["part_tag"], plc["job"]) == (["TRIGGER"], 31, 1)
+        assert "DONE" in plc["status"] and "RESULT_OK" in plc["status"] and isinstance(plc["heartbeat"], int)
+        assert plc["plc_heartbeat"] > 0  # the line beats every 0.1 s, the file is up to 1 s old: not equal
+        assert 0 <= (await line.outputs()).heartbeat - plc["heartbeat"] <= 3  # register 12 beats every 0.5 s
         await line.acknowledge()
-    messages = []
-    with contextlib.suppress(BlockingIOError):
-        while True:
-            messages.append(sock.recv(4096).decode())
+    drain()
     sock.close()
     assert messages[0].startswith("READY=1\nSTATUS=idle")
     assert "WATCHDOG=1" in messages and "STOPPING=1" in messages

@@ -91,3 +91,20 @@ def test_watchdog_interval_defaults_to_this_process(monkeypatch: pytest.MonkeyPa
     monkeypatch.setenv("WATCHDOG_USEC", "4000000")
     monkeypatch.setenv("WATCHDOG_PID", str(os.getpid()))
     assert watchdog_interval_s() == 2.0
+
+
+def test_a_receiver_that_does_not_read_never_blocks_the_service(path_socket: tuple[socket.socket, str],
+                                                                 caplog: pytest.LogCaptureFixture) -> None:
+    """A notify socket whose queue is full (nobody reading) loses messages, logged, and never holds the caller:
+    200 sends return at once (the kernel queues about 10 datagrams), and reading again resumes delivery."""
+    import time
+
+    sock, address = path_socket
+    notifier = Notifier({"NOTIFY_SOCKET": address})
+    start = time.monotonic()
+    sent = [notifier.watchdog() for _ in range(200)]
+    assert time.monotonic() - start < 2.0
+    assert sent[0] is True and sent.count(False) > 0 and "Resource temporarily unavailable" in caplog.text
+    queued = sent.count(True)
+    assert [_received(sock) for _ in range(queued)] == ["WATCHDOG=1"] * queued
+    assert notifier.status("idle") is True and _received(sock) == "STATUS=idle"
