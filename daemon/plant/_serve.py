@@ -79,18 +79,25 @@ async def serve_plant(config: Any, settings: PlantSettings, state_dir: Path, sto
         newest, counts = await asyncio.to_thread(view.start, settings.last_results)
         metrics.seed(counts, newest, view.seen)
         await opcua.seed(newest)
+        await _show(view, opcua, metrics)  # the first reading before anyone is told we serve: no empty first answer
         if on_ready is not None:
             on_ready(PlantEndpoints(opcua.url, metrics_url, identity))
         while not stop.is_set():
-            started = time.monotonic()
-            reading = await asyncio.to_thread(view.poll)
-            if time.monotonic() - started > SLOW_POLL_S:
-                log.warning("reading the state directory took %.1f s", time.monotonic() - started)
-            await opcua.show(reading)
-            metrics.show(reading)
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(stop.wait(), settings.poll_s)
+            if not stop.is_set():
+                await _show(view, opcua, metrics)
     finally:
         await opcua.stop()
         metrics.stop()
         view.close()
+
+
+async def _show(view: CellView, opcua: PlantOpcUa, metrics: PlantMetrics) -> None:
+    """One reading of the state directory, shown in the address space and the metrics."""
+    started = time.monotonic()
+    reading = await asyncio.to_thread(view.poll)
+    if time.monotonic() - started > SLOW_POLL_S:
+        log.warning("reading the state directory took %.1f s", time.monotonic() - started)
+    await opcua.show(reading)
+    metrics.show(reading)
