@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import logging
 import re
-import select
 import subprocess
-import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -16,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import serial
+from helpers.sim_processes import start_sim_tracker
 
 from monoguide.daemon.assembly import build_sim_cell
 from monoguide.daemon.config import load_cell_config
@@ -41,20 +40,6 @@ class SimTracker:
     process: subprocess.Popen[str]
     cell: SimCell
     targets_file: Path
-
-
-def start_sim_tracker(targets_file: Path, seed: int = 7) -> tuple[subprocess.Popen[str], str]:
-    """Start ``python -m monoguide.drivers.sim.tracker`` and read the pty path it listens on."""
-    process = subprocess.Popen([sys.executable, "-m", "monoguide.drivers.sim.tracker", "--targets",
-                                str(targets_file), "--seed", str(seed)], stdout=subprocess.PIPE, text=True)
-    assert process.stdout is not None
-    ready, _, _ = select.select([process.stdout], [], [], 15.0)
-    words = process.stdout.readline().split() if ready else []
-    if words[:2] != ["LISTEN", "tracker"]:
-        process.kill()
-        process.wait(5)
-        pytest.fail(f"simulated tracker did not start: {words}")
-    return process, words[2]
 
 
 def stop(process: subprocess.Popen[str]) -> None:
