@@ -60,6 +60,14 @@ class CycleAborted(CycleError):
     plc_code = 602
 
 
+class PartNotCalibrated(CycleError):
+    """The job's part type has not been calibrated by the wizard (``calibrate part|sfi --job N``) in a cell whose
+    other parts have: its jobs are refused, the message names the job, the part and the missing steps."""
+
+    code = "PART_NOT_CALIBRATED"
+    plc_code = 603
+
+
 
 class NotifySocketInvalid(MonoguideError):
     """``$NOTIFY_SOCKET`` is neither a path nor an abstract socket name (``@...``); e.g. a ``vsock:`` address."""

@@ -130,6 +130,15 @@ class InconsistentMeasurement(SolveFailed):
     plc_code = 207
 
 
+class CalibrationSuspect(SolveFailed):
+    """The cell's calibration no longer fits what the camera sees: a view's camera stood further from its
+    calibrated pose than the tolerance (fixed marks, the check job) or the trend monitor passed its alarm level.
+    The message names the view and the deviation in mm and deg; nothing is written to the robot."""
+
+    code = "CALIBRATION_SUSPECT"
+    plc_code = 208
+
+
 # --- hole detection (3xx) -----------------------------------------------------------------------
 
 
