@@ -61,11 +61,11 @@ class CycleAborted(CycleError):
 
 
 class PartNotCalibrated(CycleError):
-    """The job's part type has not been calibrated by the wizard (``calibrate part|sfi --job N``) in a cell whose
+    """The job's part type has not been calibrated by the wizard (``monoguide calibrate --job N``) in a cell whose
     other parts have: its jobs are refused, the message names the job, the part and the missing steps."""
 
     code = "PART_NOT_CALIBRATED"
-    plc_code = 603
+    plc_code = 604  # 603 was CYCLE_CAPTURE_POSE_MISMATCH (retired, never reused)
 
 
 

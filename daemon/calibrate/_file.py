@@ -77,14 +77,20 @@ _TABLES = {"camera.intrinsics": ("camera", "intrinsics"), "camera": ("camera",),
 # --- public --------------------------------------------------------------------------------------
 
 
-def write_calibration(config_path: Path, steps: dict[str, dict[str, Any]], provenance: dict[str, Any]) -> Path:
+def write_calibration(config_path: Path, steps: dict[str, dict[str, Any]], provenance: dict[str, Any],
+                      part: dict[str, Any] | None = None) -> Path:
     """Rewrite ``config_path`` in place with the calibrated values of the ``steps`` present (results as the
     wizard stores them, docs/calibration.md) and a ``[calibration]`` provenance section; keep the previous file
     as ``<stem>.<UTC timestamp>.previous.toml`` beside it. Returns ``config_path``.
 
     ``provenance``: ``session`` (str), ``devices`` ({name: "vendor model serial"}), ``sim`` (bool), optionally
     ``date`` (ISO; default now, UTC) and ``wizard_version`` (default the installed monoguide's). Steps absent
-    from ``steps`` leave their values and their earlier provenance summary untouched."""
+    from ``steps`` leave their values and their earlier provenance summary untouched.
+
+    ``part``: a part type's calibration (``calibrate --job N``): ``job``, ``name`` and ``cell_steps`` (the
+    cell-wide steps' "done" times it was made with); its values are written (its ``T_cf_w0``, its poses'
+    ``T_cf_si``, not the camera's mounting, which is the cell's) and its provenance goes into
+    ``[calibration.parts.<job>]``, the rest of ``[calibration]`` kept."""
     config_path = Path(config_path)
     try:
         original = config_path.read_bytes()
@@ -99,8 +105,9 @@ def write_calibration(config_path: Path, steps: dict[str, dict[str, Any]], prove
         raise CalibrationFileUneditable(f"{config_path}: not valid TOML, nothing written: {exc}") from exc
     now = datetime.now(UTC)
     previous = _previous_path(config_path, now)
-    values = _calibrated_values(steps, raw, config_path)
-    record = _provenance(steps, provenance, raw, previous.name, now)
+    values = _calibrated_values(steps, raw, config_path, mounting=part is None)
+    record = (_provenance(steps, provenance, raw, previous.name, now) if part is None
+              else _part_provenance(steps, provenance, raw, part, previous.name, now))
 
     for (table, index, key), (kind, value) in values.items():
         _set(_calibrated_table(doc, table, index, config_path), key, kind, value)
@@ -130,9 +137,10 @@ def read_calibration_provenance(config: CellConfig | str | os.PathLike[str]) -> 
 # --- the calibrated values -------------------------------------------------------------------------
 
 
-def _calibrated_values(steps: dict[str, dict[str, Any]], raw: dict[str, Any], path: Path
+def _calibrated_values(steps: dict[str, dict[str, Any]], raw: dict[str, Any], path: Path, mounting: bool = True
                        ) -> dict[tuple[str, int, str], tuple[str, Any]]:
-    """(table, array index or -1, key) -> ("matrix" | "number" | "integer", value) for every calibrated key."""
+    """(table, array index or -1, key) -> ("matrix" | "number" | "integer", value) for every calibrated key;
+    ``mounting``: sfi's ``T_f_c`` too (a part type's session leaves the camera's mounting to the cell's)."""
     if unknown := sorted(set(steps) - set(CALIBRATION_STEPS)):
         raise CalibrationValueInvalid(f"{path}: unknown calibration steps {unknown}; steps are "
                                       f"{list(CALIBRATION_STEPS)}")
@@ -164,7 +172,8 @@ def _calibrated_values(steps: dict[str, dict[str, Any]], raw: dict[str, Any], pa
             out[("reference", -1, "T_cf_w0")] = T_cf_w0
     if "sfi" in steps:
         sfi = steps["sfi"]
-        out[("camera", -1, "T_f_c")] = ("matrix", _rigid(sfi.get("T_f_c"), "sfi: T_f_c"))
+        if mounting:
+            out[("camera", -1, "T_f_c")] = ("matrix", _rigid(sfi.get("T_f_c"), "sfi: T_f_c"))
         entries = raw.get("measuring_poses") or []
         names = [e.get("name", f"S{i + 1}") if isinstance(e, dict) else "" for i, e in enumerate(entries)]
         for pose in sfi.get("poses") or []:
@@ -244,6 +253,25 @@ def _provenance(steps: dict[str, dict[str, Any]], provenance: dict[str, Any], ra
         record["devices"] = {str(k): str(v) for k, v in devices.items()}
     if summaries:
         record["steps"] = {name: summaries[name] for name in CALIBRATION_STEPS if name in summaries}
+    if old.get("parts"):  # the other part types' calibrations stay (each says which cell steps it was made with)
+        record["parts"] = old["parts"]
+    return record
+
+
+def _part_provenance(steps: dict[str, dict[str, Any]], provenance: dict[str, Any], raw: dict[str, Any],
+                     part: dict[str, Any], previous: str, now: datetime) -> dict[str, Any]:
+    """``[calibration]`` as it was (or new), with part type ``part["job"]``'s entry in ``parts`` (re)written."""
+    own = _provenance(steps, provenance, {}, previous, now)
+    old = raw.get("calibration") if isinstance(raw.get("calibration"), dict) else {}
+    record = {k: v for k, v in old.items() if k != "parts"} or {k: own[k] for k in ("date", "wizard_version")}
+    record["previous"] = previous
+    entry = {"name": str(part["name"]), "date": own["date"]}
+    if "session" in own:
+        entry["session"] = own["session"]
+    entry["wizard_version"] = own["wizard_version"]
+    entry["cell_steps"] = {str(k): str(v) for k, v in (part.get("cell_steps") or {}).items()}
+    entry["steps"] = own.get("steps", {})
+    record["parts"] = {**(old.get("parts") or {}), str(int(part["job"])): entry}
     return record
 
 
@@ -259,10 +287,28 @@ def _provenance_table(record: dict[str, Any]) -> Table:
             table[key] = tomlkit.table()
             table[key].update(value)
         elif key == "steps":
-            table[key] = commented(tomlkit.table(), "per step: when, and its residual summary")
-            table[key].update({name: inline_table(summary) for name, summary in value.items()})
+            table[key] = _steps_table(value)
+        elif key == "parts":
+            table[key] = commented(tomlkit.table(), "the other part types, each calibrated by `monoguide calibrate "
+                                                    "--job N` with the cell steps of cell_steps")
+            for job, entry in value.items():
+                sub = tomlkit.table()
+                for k, v in entry.items():
+                    if k == "steps":
+                        sub[k] = _steps_table(v)
+                    elif isinstance(v, dict):
+                        sub[k] = inline_table(v)
+                    else:
+                        sub[k] = v
+                table[key][str(job)] = sub
         else:
             table[key] = value
+    return table
+
+
+def _steps_table(summaries: dict[str, dict[str, Any]]) -> Table:
+    table = commented(tomlkit.table(), "per step: when, and its residual summary")
+    table.update({name: inline_table(summary) for name, summary in summaries.items()})
     return table
 
 

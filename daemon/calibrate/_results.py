@@ -13,6 +13,7 @@ from pathlib import Path
 from monoguide.daemon.calibrate._file import write_calibration
 from monoguide.daemon.calibrate._report import write_report
 from monoguide.daemon.calibrate._session import CalibrationSession, now_iso
+from monoguide.daemon.config import CELL_STEPS
 from monoguide.solver.calibration.errors import CalibrationError
 
 
@@ -30,7 +31,13 @@ def write_session_calibration(session: CalibrationSession, calibrated_config: Pa
                                "report, redo a step (--from STEP), or write it anyway with --accept")
     provenance = {"date": now_iso(), "session": str(session.path), "wizard_version": metadata.version("monoguide"),
                   "devices": session.data.get("devices", {}), "sim": sim}
-    path = write_calibration(calibrated_config, session.results(), provenance)
+    if session.cell is None:
+        path = write_calibration(calibrated_config, session.results(), provenance)
+    else:  # a part type's: its own steps' values, its provenance in [calibration.parts.<job>]
+        results = session.results()
+        part = {"job": session.job, "name": session.data.get("part_name", f"job {session.job}"),
+                "cell_steps": {s: results[s]["done"] for s in CELL_STEPS if "done" in results.get(s, {})}}
+        path = write_calibration(calibrated_config, {s: results[s] for s in session.done()}, provenance, part)
     session.data["calibration_file"] = str(path)
     return path
 

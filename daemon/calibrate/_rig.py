@@ -26,7 +26,8 @@ CLEAR_VIEW = "clear_view"  # take the plate / target out of the camera's view
 PLACE_SMR = "place_smr"  # nest: str -- put the SMR in tracker nest `nest` ("B1", "P3", "T2.4")
 MOUNT_FLANGE_SMR = "mount_flange_smr"  # fit the SMR tool on the robot flange (nest "TCP")
 UNMOUNT_FLANGE_SMR = "unmount_flange_smr"
-PLACE_TARGET = "place_target"  # pose: int, placement: int -- the calibration target under measuring pose `pose`
+PLACE_TARGET = "place_target"  # pose: int, placement: int -- the target under the cell's pose index `pose`
+# (0-based: its robot pose number - 1)
 REMOVE_TARGET = "remove_target"  # pose: int
 PLACE_PART = "place_part"  # part: "reference" | int k >= 1 (a part in a new pose k, for the accuracy validation)
 

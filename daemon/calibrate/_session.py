@@ -5,6 +5,10 @@ atomically (a temporary file, then ``os.replace``) after each step, so an interr
 resumes at the first step not done. A session belongs to one cell config (and to ``--sim`` or not); the
 options that shaped a step already done may not change under it (``--from STEP`` or ``--restart`` redo it).
 A session file that cannot be read is an error naming it; it is never silently overwritten.
+
+A cell of several part types calibrates the cell-wide steps (intrinsics, cell, base) and the first part type in
+the cell's session; every other part type (``--job N``) in its own session, ``<work dir>/job-N/``, of the
+part steps (part, sfi, verify, accuracy) only, which reads the cell-wide results from the cell's session.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from monoguide.daemon.calibrate._rig import REQUIRES, STEPS, CalibrationOptions
+from monoguide.daemon.config import CELL_STEPS, PART_STEPS
 from monoguide.daemon.errors import CalibrationSessionInvalid
 from monoguide.drivers.atomic_file import write_atomic
 from monoguide.solver.errors import MonoguideError
@@ -51,16 +56,31 @@ class CalibrationSession:
 
     path: Path
     data: dict[str, Any]
+    cell: CalibrationSession | None = None  # a part type's session (``data["job"]``): the cell's, for its cell steps
+
+    @property
+    def steps(self) -> tuple[str, ...]:
+        """The steps this session does, in order: all of them, or a part type's."""
+        return PART_STEPS if self.cell is not None else STEPS
+
+    @property
+    def job(self) -> int | None:
+        """The part type of a part type's session (``--job N``); None for the cell's session."""
+        return self.data.get("job")
 
     # --- create / load -------------------------------------------------------------------------------
 
     @classmethod
     def create(cls, path: Path, config: Path, sim: bool, options: CalibrationOptions,
-               devices: dict[str, str] | None = None) -> CalibrationSession:
-        """A new, empty session (written at once)."""
-        session = cls(Path(path), {"format": SESSION_FORMAT, "config": str(Path(config).resolve()), "sim": bool(sim),
-                                   "started": now_iso(), "devices": dict(devices or {}),
-                                   "options": options.as_dict(), "steps": {}, "refused": {}})
+               devices: dict[str, str] | None = None, cell: CalibrationSession | None = None,
+               job: int | None = None) -> CalibrationSession:
+        """A new, empty session (written at once); with ``cell`` and ``job``, part type ``job``'s."""
+        data = {"format": SESSION_FORMAT, "config": str(Path(config).resolve()), "sim": bool(sim),
+                "started": now_iso(), "devices": dict(devices or {}), "options": options.as_dict(), "steps": {},
+                "refused": {}}
+        if cell is not None:
+            data["job"] = int(job) if job is not None else None
+        session = cls(Path(path), data, cell)
         session.save()
         return session
 
@@ -138,23 +158,28 @@ class CalibrationSession:
     # --- steps ---------------------------------------------------------------------------------------
 
     def done(self) -> list[str]:
-        """The steps done, in the wizard's order."""
-        return [s for s in STEPS if s in self.data["steps"]]
+        """The steps of this session done, in the wizard's order."""
+        return [s for s in self.steps if s in self.data["steps"]]
 
     def results(self) -> dict[str, dict[str, Any]]:
-        return {s: self.data["steps"][s] for s in self.done()}
+        """The results the steps read: this session's, and a part type's session's cell-wide ones."""
+        own = {s: self.data["steps"][s] for s in self.done()}
+        if self.cell is None:
+            return own
+        return {**{s: r for s, r in self.cell.results().items() if s in CELL_STEPS}, **own}
 
     def next_step(self) -> str | None:
         """The first step not done (``None``: all done)."""
-        return next((s for s in STEPS if s not in self.data["steps"]), None)
+        return next((s for s in self.steps if s not in self.data["steps"]), None)
 
     def missing_for(self, step: str) -> list[str]:
-        """The steps ``step`` needs that are not done."""
-        return [s for s in REQUIRES[step] if s not in self.data["steps"]]
+        """The steps ``step`` needs that are not done (a part type's: the cell's session's too)."""
+        results = self.results()
+        return [s for s in REQUIRES[step] if s not in results]
 
     def forget(self, step: str) -> list[str]:
         """Drop ``step``'s result and those of the done steps that depend on it; returns the dropped names."""
-        dropped = [s for s in STEPS if s in self.data["steps"] and (s == step or step in REQUIRES[s])]
+        dropped = [s for s in self.steps if s in self.data["steps"] and (s == step or step in REQUIRES[s])]
         for s in dropped:
             del self.data["steps"][s]
         return dropped
@@ -162,7 +187,7 @@ class CalibrationSession:
     def forget_from(self, step: str) -> list[str]:
         """``--from STEP``: drop ``step`` and every later step (and what depends on them)."""
         dropped: list[str] = []
-        for s in STEPS[STEPS.index(step):]:
+        for s in self.steps[self.steps.index(step):]:
             dropped += [d for d in self.forget(s) if d not in dropped]
         return dropped
 
@@ -186,11 +211,23 @@ class CalibrationSession:
 
 
 def open_session(work_dir: Path, config: Path, sim: bool, given: dict[str, Any], *, restart: bool = False,
-                 defaults: dict[str, Any] | None = None) -> tuple[CalibrationSession, CalibrationOptions]:
+                 defaults: dict[str, Any] | None = None, job: int | None = None
+                 ) -> tuple[CalibrationSession, CalibrationOptions]:
     """The session of ``work_dir`` to go on with (checked against the cell) and the options to use: the
     built-in defaults, then ``defaults`` (the cell config's; a new session only) or the session's, then ``given``.
-    ``restart`` starts afresh, keeping the old file as ``<name>.previous``."""
+    ``restart`` starts afresh, keeping the old file as ``<name>.previous``. With ``job``: part type ``job``'s
+    session in ``work_dir/job-<job>/`` (the cell's session must exist: its cell-wide steps are read from it; a new
+    part type's session starts from its options)."""
+    cell = None
     path = Path(work_dir) / SESSION_FILE
+    if job is not None:
+        cell = CalibrationSession.load(path)
+        if cell is None:
+            raise CalibrationSessionInvalid(f"{path}: no calibration session of the cell: calibrate the cell (and its "
+                                            f"first part type) without --job first, then --job {job}")
+        cell.check_matches(config, sim)
+        defaults = {**(defaults or {}), **cell.data.get("options", {})}
+        path = Path(work_dir) / f"job-{job}" / SESSION_FILE
     if restart:
         if path.exists():
             os.replace(path, path.with_name(path.name + ".previous"))
@@ -199,8 +236,11 @@ def open_session(work_dir: Path, config: Path, sim: bool, given: dict[str, Any],
         session = CalibrationSession.load(path)
     if session is None:
         options = options_from_dict({**(defaults or {}), **given})
-        return CalibrationSession.create(path, config, sim, options), options
+        return CalibrationSession.create(path, config, sim, options, cell=cell, job=job), options
+    session.cell = cell
     session.check_matches(config, sim)
+    if session.job != job:
+        raise CalibrationSessionInvalid(f"{session.path}: this session calibrates job {session.job}, not {job}")
     options = session.merge_options(given)
     session.save()
     return session, options

@@ -15,6 +15,9 @@
   in this process following sim-cell's robot, and the simulated operator acting on the scene the camera
   renders and the tracker measures (``drivers/sim/calibration_scene.py``).
 - ``truth_errors(step, result, earlier)``: each step's result against the truth config (``_sim_truth``).
+
+A part type's session (``--job N``) calibrates the config the cell's session made (``calibrating``), as part type
+``N`` sees it, with a part of type ``N`` in the simulated cell.
 """
 
 from __future__ import annotations
@@ -54,22 +57,32 @@ POSE_PERTURBATION = {"T_cf_b": (5.0, 0.3), "T_cf_w0": (5.0, 0.3), "T_cf_si": (3.
 
 @contextmanager
 def open_sim_rig(truth_config: Path, work_dir: Path, options: CalibrationOptions, *, seed: int = 1,
-                 host: str | None = None, progress: Callable[[str], None] = quiet) -> Iterator[CalibrationRig]:
+                 host: str | None = None, progress: Callable[[str], None] = quiet, job: int | None = None,
+                 calibrating: Path | None = None) -> Iterator[CalibrationRig]:
     """The rig of ``monoguide calibrate --sim`` (see the module's doc); every device closed and the simulated
-    cell stopped on leaving, however it is left."""
+    cell stopped on leaving, however it is left. ``job``: part type ``job``'s rig on the config ``calibrating``
+    (the cell's session's; default: a new cell before calibration in ``work_dir``)."""
     work_dir = Path(work_dir).resolve()
     work_dir.mkdir(parents=True, exist_ok=True)
     derived = derive_config(Path(truth_config), work_dir / "sim-cell", host=host)
     truth = load_cell_config(derived.config)
     _check_truth(truth)
-    config_path = write_before_calibration(truth, derived.data, work_dir / "cell.toml", seed)
+    if calibrating is None:
+        config_path = write_before_calibration(truth, derived.data, work_dir / "cell.toml", seed)
+        progress(f"the cell before calibration: {config_path} (truth: {Path(truth_config).resolve()})")
+    else:
+        config_path = Path(calibrating)
     config = load_cell_config(config_path)
-    progress(f"the cell before calibration: {config_path} (truth: {Path(truth_config).resolve()})")
+    if job is not None:
+        config, truth = config.for_job(job), truth.for_job(job)
+        progress(f"part type {job} ({config.part_name}) of {config_path} (truth: {Path(truth_config).resolve()})")
     progress(f"starting the simulated cell on {derived.host} (log {work_dir / 'sim-cell.log'})")
     with SimCellProcess(derived.config, work_dir / "sim-cell.log") as child, contextlib.ExitStack() as devices:
         child.wait_listening()
         state = read_sim_state(derived.sim_state)
         cell = build_sim_cell(truth)
+        if job is not None:
+            cell.set_part_type(job)  # the part the line supplies is of this type
         operator = build_sim_operator(cell, Path(state["tracker"]["targets"]), Path(state["robot"]["truth"]), seed)
         tracker = build_tracker(truth, derived.sim_state)
         robot = build_robot(config, derived.sim_state)

@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from monoguide.daemon.calibrate._rig import STEPS, CalibrationRig, quiet
+from monoguide.daemon.calibrate._rig import CalibrationRig, quiet
 from monoguide.daemon.calibrate._session import CalibrationSession
 from monoguide.daemon.calibrate._steps_check import run_accuracy, run_verify
 from monoguide.daemon.calibrate._steps_frames import run_base, run_cell, run_intrinsics
@@ -47,10 +47,10 @@ def plan_steps(session: CalibrationSession, step: str | None, from_step: str | N
             note(f"redoing {', '.join(dropped)}")
             session.data.pop("calibration_file", None)
         session.save()
-    to_run = [s for s in STEPS if s not in session.data["steps"]]
+    to_run = [s for s in session.steps if s not in session.data["steps"]]
     done = len(session.done())
     if to_run and done:
-        note(f"resuming at step '{to_run[0]}' ({done} of {len(STEPS)} done)")
+        note(f"resuming at step '{to_run[0]}' ({done} of {len(session.steps)} done)")
     return to_run
 
 
@@ -62,7 +62,8 @@ def run_step(rig: CalibrationRig, session: CalibrationSession, step: str) -> dic
     missing = session.missing_for(step)
     if missing:
         raise CalibrationStepNotReady(f"needs {', '.join(missing)} done first")
-    rig.progress(f"--- step '{step}' ({STEPS.index(step) + 1} of {len(STEPS)})")
+    of_job = f" of job {session.job} ({rig.config.part_name})" if session.job is not None else ""
+    rig.progress(f"--- step '{step}'{of_job} ({session.steps.index(step) + 1} of {len(session.steps)})")
     try:
         result = STEP_FUNCTIONS[step](rig, session.results())
     except CalibrationAborted:

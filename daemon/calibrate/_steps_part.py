@@ -60,7 +60,7 @@ def run_sfi(rig: CalibrationRig, earlier: dict[str, dict[str, Any]]) -> dict[str
     T_cf_tracker = earlier_matrix(earlier, "sfi", "cell", "T_cf_tracker")
     T_cf_b = earlier_matrix(earlier, "sfi", "base", "T_cf_b") if "base" in earlier else None
     cfg, opts = rig.config, rig.options
-    targets = [_target(cfg, i) for i in range(len(cfg.measuring_poses))]  # refuse before anything moves
+    targets = [_target(cfg, pose.number - 1) for pose in cfg.measuring_poses]  # refuse before anything moves
     visits: list[list[Visit]] = []
     last_stop: int | None = None
     n_poses = len(cfg.measuring_poses)
@@ -71,7 +71,7 @@ def run_sfi(rig: CalibrationRig, earlier: dict[str, dict[str, Any]]) -> dict[str
         for p in range(opts.placements):
             rig.operator.ask(PLACE_TARGET, f"place the calibration target {name_t} under measuring pose {pose.name} "
                              f"(placement {p + 1} of {opts.placements}: a little shifted and turned from the last)",
-                             pose=i, placement=p)
+                             pose=pose.number - 1, placement=p)
             nest_names = [f"{name_t}.{k + 1}" for k in range(len(nests_t))]
             measured = np.array([tracker_point_cf(rig, T_cf_tracker, nest, f"nest {nest} of target {name_t}")
                                  for nest in nest_names])
@@ -97,7 +97,7 @@ def run_sfi(rig: CalibrationRig, earlier: dict[str, dict[str, Any]]) -> dict[str
                 rig.progress(f"sfi {where}: target at {float(np.linalg.norm(view.T_c_t[:3, 3])):.1f} mm, "
                              f"marks RMS {view.rms_px:.3f} px")
         rig.operator.ask(REMOVE_TARGET, f"take the calibration target {name_t} away from measuring pose {pose.name}",
-                         pose=i)
+                         pose=pose.number - 1)
     return _sfi_result(rig, visits, T_cf_b)
 
 
@@ -155,8 +155,9 @@ def _sfi_result(rig: CalibrationRig, visits: list[list[Visit]], T_cf_b: np.ndarr
 
 
 def _target(config: CellConfig, i: int) -> tuple[str, np.ndarray, TargetMarks]:
-    """The target used at measuring pose ``i``: its tracker name ``T<i+1>``, its nests (m, 3) in TF and its
-    marks; ``[calibration_target]``, else (a simulated cell without one) the simulated target of the pose."""
+    """The target used at the cell's measuring pose ``i`` (robot pose number ``i + 1``): its tracker name ``T<i+1>``,
+    its nests (m, 3) in TF and its marks; ``[calibration_target]``, else (a simulated cell without one) the
+    simulated target of the pose."""
     name = f"T{i + 1}"
     target = getattr(config, "calibration_target", None)
     if target is not None:
@@ -165,7 +166,7 @@ def _target(config: CellConfig, i: int) -> tuple[str, np.ndarray, TargetMarks]:
     if i < len(sim_targets):
         return name, np.asarray(sim_targets[i].points_t, dtype=float), default_target_marks()
     raise CalibrationNoTarget(f"{config.path}: no [calibration_target] section: the wizard needs the target's SMR "
-                              f"nests and marks to calibrate measuring pose {config.measuring_poses[i].name}")
+                              f"nests and marks to calibrate measuring pose {config.cell_poses[i].name}")
 
 
 def _full_image(rig: CalibrationRig, image: np.ndarray) -> np.ndarray:

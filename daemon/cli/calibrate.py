@@ -8,6 +8,11 @@ simulated cell and prints each result's error against its truth. The wizard itse
 ``monoguide.daemon.calibrate``; this module reads the options, wires the prompts and progress to the terminal
 and ends the command as ``cli._policy`` says.
 
+A cell of several part types (``[[parts]]``): the run without ``--job`` calibrates the cell-wide steps and the
+first part type; ``--job N`` then calibrates part type N's own steps (part, sfi, verify, accuracy) in the session
+``CELL.calibration/job-N/`` with the cell's intrinsics, cell frame and robot base, and writes its values and
+``[calibration.parts.N]`` into the same cell config.
+
 Exit status: 0 done (or nothing left to do), 1 a step refused or a device failed (the session keeps what was
 done), 2 bad options, config or session, 130 interrupted (Ctrl-C, or end of input at a prompt). The line that
 says why is ``CODE message`` on standard error (``CALIBRATION_DEGENERATE step 'cell' refused: ...``).
@@ -46,8 +51,8 @@ from monoguide.daemon.calibrate import (
 )
 from monoguide.daemon.cli._console import say, stderr_console
 from monoguide.daemon.cli._policy import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, exit_status, fail, report
-from monoguide.daemon.config import CellConfig, load_cell_config
-from monoguide.daemon.errors import CalibrationAborted, CalibrationSessionInvalid
+from monoguide.daemon.config import CELL_STEPS, CellConfig, load_cell_config
+from monoguide.daemon.errors import CalibrationAborted, CalibrationSessionInvalid, CalibrationStepNotReady
 from monoguide.daemon.packaged import is_packaged, sim_cell_config
 from monoguide.drivers.errors import ConfigError
 from monoguide.solver.errors import MonoguideError
@@ -82,6 +87,9 @@ def calibrate(
     ] = None,
     accept: Annotated[bool, typer.Option("--accept", help="write the calibration even though the accuracy "
                                          "validation failed (its verdict stays in the provenance)")] = False,
+    job: Annotated[int | None, typer.Option("--job", help="a part type's steps (part, sfi, verify, accuracy) of a "
+                                            "cell of [[parts]]; the cell-wide steps are the run without --job's")
+                   ] = None,
 ) -> None:
     """Calibrate the cell: intrinsics, cell frame, robot base, part, measuring poses, verification, accuracy."""
     cli = {"plate_images": plate_images, "base_poses": base_poses, "placements": placements, "visits": visits,
@@ -89,17 +97,22 @@ def calibrate(
            "tolerance_deg": tolerance_deg, "cell_method": cell_method}
     try:
         config_path, cfg, given = _check_invocation(step, from_step, config, sim, values, cli)
+        job = _check_job(cfg, job, step, from_step)
         work = Path(work_dir) if work_dir is not None else _default_work_dir(config_path)
         method = getattr(getattr(cfg, "cell_frame", None), "method", None)  # [cell_frame] method: a new session's
         session, options = open_session(work, config_path, sim, given, restart=restart,
-                                        defaults={"cell_method": method} if method else {})
+                                        defaults={"cell_method": method} if method else {}, job=job)
+        if job is not None:
+            cfg = cfg.for_job(job)
+            session.data["part_name"] = cfg.part_name
+            _check_cell_steps(session)
         to_run = plan_steps(session, step, from_step, note=_note)
     except MonoguideError as exc:  # ConfigError, CalibrationSessionInvalid, CalibrationStepNotReady
         fail(exc, status=EXIT_USAGE)
     code = EXIT_OK
     if to_run:
         try:
-            with _open_rig(cfg, config_path, work, options, sim=sim, seed=seed, host=host, yes=yes) as rig:
+            with _open_rig(cfg, config_path, session, options, sim=sim, seed=seed, host=host, yes=yes) as rig:
                 session.data["calibrated_config"] = str(rig.config_path)
                 session.check_devices(rig.devices())
                 code = run_steps(rig, session, to_run, human=_human_sink(json_out))
@@ -114,10 +127,10 @@ def calibrate(
             report(exc)
             code = exit_status(exc)
     elif "calibration_file" in session.data:
-        _note(f"all {len(STEPS)} steps are done ({session.path}); --from STEP or --restart to redo")
+        _note(f"all {len(session.steps)} steps are done ({session.path}); --from STEP or --restart to redo")
     calibrated = Path(session.data.get("calibrated_config") or config_path)
     if (code == EXIT_OK and session.next_step() is None and "calibration_file" not in session.data
-            and not write_results(session, calibrated, work, sim, accept)):
+            and not write_results(session, calibrated, session.path.parent, sim, accept)):
         code = EXIT_FAILED
     if json_out:
         sys.stdout.write(json.dumps(summary(session)) + "\n")
@@ -207,6 +220,33 @@ def _check_invocation(step: str | None, from_step: str | None, config: Path | No
     return Path(config), cfg, given
 
 
+def _check_job(cfg: CellConfig, job: int | None, step: str | None, from_step: str | None) -> int | None:
+    """``--job N``: a part type of the cell other than the first (whose steps are the cell's session's), asked only
+    for its own steps; None for the cell's session."""
+    if job is None:
+        return None
+    cfg.for_job(job)  # ConfigError naming the cell's jobs
+    for name, value in (("STEP", step), ("--from", from_step)):
+        if value in CELL_STEPS:
+            raise ConfigError(f"{name} {value}: a cell-wide step ({', '.join(CELL_STEPS)}), done once for the cell: "
+                              "run it without --job")
+    if job == cfg.jobs[0]:
+        _note(f"job {job} ({cfg.for_job(job).part_name}) is the cell's first part type: it is calibrated with the "
+              "cell, in the session without --job")
+        return None
+    return job
+
+
+def _check_cell_steps(session: CalibrationSession) -> None:
+    """A part type's session needs the cell's session to have done the cell-wide steps (and opened the cell)."""
+    assert session.cell is not None
+    missing = [s for s in CELL_STEPS if s not in session.cell.data["steps"]]
+    if missing or "calibrated_config" not in session.cell.data:
+        raise CalibrationStepNotReady(f"job {session.job}: the cell-wide step(s) {', '.join(missing or CELL_STEPS)} "
+                                      f"are not done in the cell's session {session.cell.path}: run "
+                                      f"`monoguide calibrate {missing[0] if missing else ''}` without --job first")
+
+
 def _read_values(path: Path | None) -> dict[str, Any]:
     """``--values FILE``: option values (TOML or JSON, keys as the options' names, ``-`` or ``_``)."""
     if path is None:
@@ -245,11 +285,14 @@ def _check_options(given: dict[str, Any]) -> None:
 
 
 @contextlib.contextmanager
-def _open_rig(cfg: CellConfig, config_path: Path, work: Path, options: CalibrationOptions, *, sim: bool, seed: int,
-              host: str | None, yes: bool) -> Iterator[CalibrationRig]:
-    """The simulated cell's rig (``--sim``: its own operator) or the real cell's, with the console operator."""
+def _open_rig(cfg: CellConfig, config_path: Path, session: CalibrationSession, options: CalibrationOptions, *,
+              sim: bool, seed: int, host: str | None, yes: bool) -> Iterator[CalibrationRig]:
+    """The simulated cell's rig (``--sim``: its own operator) or the real cell's, with the console operator; a
+    part type's session calibrates the config of the cell's session, as its part type sees it."""
     if sim:
-        with open_sim_rig(config_path, work, options, seed=seed, host=host, progress=_note) as rig:
+        calibrating = Path(session.cell.data["calibrated_config"]) if session.cell is not None else None
+        with open_sim_rig(config_path, session.path.parent, options, seed=seed, host=host, progress=_note,
+                          job=session.job, calibrating=calibrating) as rig:
             yield rig
     else:
         with open_cell_rig(cfg, config_path, options, ConsoleOperator(yes), _note) as rig:

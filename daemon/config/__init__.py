@@ -11,6 +11,8 @@ from __future__ import annotations
 from monoguide.daemon.config._bounds import BOUNDS
 from monoguide.daemon.config._calibration import (
     CALIBRATION_STEPS,
+    CELL_STEPS,
+    PART_STEPS,
     CalibrationTarget,
     CalibrationTargetConfig,
     CellFrameConfig,
@@ -32,8 +34,8 @@ from monoguide.daemon.config._service import ChecksConfig, ServiceConfig
 from monoguide.daemon.config._sim import SimConfig, default_sim_state_file
 
 __all__ = [
-    "BOUNDS", "CALIBRATION_STEPS", "INTRINSICS_KEYS", "MAX_JOB", "OPTIONAL_SECTIONS", "PARTS_SECTIONS",
-    "REQUIRED_SECTIONS",
+    "BOUNDS", "CALIBRATION_STEPS", "CELL_STEPS", "INTRINSICS_KEYS", "MAX_JOB", "OPTIONAL_SECTIONS", "PARTS_SECTIONS",
+    "PART_STEPS", "REQUIRED_SECTIONS",
     "CalibrationTarget", "CalibrationTargetConfig", "CameraConfig", "CellConfig", "CellFrameConfig", "ChecksConfig",
     "LayoutConfig", "MeasuringPose", "PartConfig", "PartType", "PlcConfig", "ReferenceConfig", "RobotConfig",
     "ServiceConfig", "SimConfig", "TrackerConfig", "default_sim_state_file", "load_cell_config", "require_sections",

@@ -18,6 +18,9 @@ from monoguide.solver.calibration.target import TargetMarks, grid_marks
 CELL_FRAME_METHODS = ("best-fit", "3-2-1")
 # the wizard's steps, in order (daemon/calibrate/ takes them from here), the keys of [calibration.steps]
 CALIBRATION_STEPS = ("intrinsics", "cell", "base", "part", "sfi", "verify", "accuracy")
+CELL_STEPS = ("intrinsics", "cell", "base")  # done once for the cell; the others once per part type
+PART_STEPS = ("part", "sfi", "verify", "accuracy")
+PART_REQUIRED_STEPS = ("part", "sfi")  # without these a part type's jobs are refused (PART_NOT_CALIBRATED)
 
 
 @dataclass(frozen=True)
@@ -94,14 +97,60 @@ def read_calibration(t: ConfigTable) -> dict[str, Any]:
     devices = t.optional_table("devices")
     out["devices"] = {k: devices.text(k) for k in list(devices.raw)}  # named by the cell: camera, tracker, ...
     devices.done()
-    steps = t.optional_table("steps")
-    out["steps"] = {}
-    for name in [k for k in CALIBRATION_STEPS if steps.has(k)]:
+    out["steps"] = _read_step_summaries(t.optional_table("steps"), CALIBRATION_STEPS)
+    parts = t.optional_table("parts")
+    out["parts"] = {}
+    for key in list(parts.raw):  # [calibration.parts.<job>]: a part type calibrated by `calibrate ... --job N`
+        if not key.isdigit():
+            raise ConfigError(f"{parts.where} {key!r}: expected a part type's job number as the key "
+                              "(e.g. [calibration.parts.2])")
+        entry = parts.table(key)
+        record: dict[str, Any] = {k: v for k in ("name", "date", "session", "wizard_version")
+                                  if (v := entry.text(k, None)) is not None}
+        cell = entry.optional_table("cell_steps")  # the cell-wide steps it was calibrated with: their "done" times
+        record["cell_steps"] = {k: cell.text(k) for k in CELL_STEPS if cell.has(k)}
+        cell.done()
+        record["steps"] = _read_step_summaries(entry.optional_table("steps"), PART_STEPS)
+        entry.done()
+        out["parts"][int(key)] = record
+    parts.done()
+    t.done()
+    return out
+
+
+def part_calibration_gap(calibration: dict[str, Any] | None, job: int, jobs: tuple[int, ...]) -> str | None:
+    """Why part type ``job`` of a cell of part types ``jobs`` cannot be used with this calibration (the missing
+    steps, or a cell recalibrated since), or ``None``. No gap in a cell without a wizard's provenance (hand-entered
+    values) or of one part type (the wizard writes only a whole calibration); the first part type is calibrated
+    with the cell (``[calibration.steps]``), every other by ``[calibration.parts.<job>]``."""
+    if calibration is None or len(jobs) < 2:
+        return None
+    first_job = jobs[0]
+    steps = calibration.get("steps") or {}
+    if job == first_job:
+        entry: dict[str, Any] | None = {"steps": steps, "cell_steps": {}}
+    else:
+        entry = (calibration.get("parts") or {}).get(job)
+    if entry is None:
+        return f"never calibrated: steps {', '.join(PART_REQUIRED_STEPS)} missing"
+    if missing := [s for s in PART_REQUIRED_STEPS if s not in entry.get("steps", {})]:
+        return f"step(s) {', '.join(missing)} missing"
+    redone = {s: steps[s]["done"] for s, done in entry.get("cell_steps", {}).items()
+              if (steps.get(s) or {}).get("done") not in (None, done)}
+    if redone:
+        when = ", ".join(f"{s} on {done}" for s, done in redone.items())
+        return (f"calibrated before the cell-wide step(s) were redone ({when}): steps "
+                f"{', '.join(PART_REQUIRED_STEPS)} must be redone")
+    return None
+
+
+def _read_step_summaries(steps: ConfigTable, names: tuple[str, ...]) -> dict[str, dict[str, Any]]:
+    out = {}
+    for name in [k for k in names if steps.has(k)]:
         step = steps.table(name)
-        out["steps"][name] = {k: _provenance_value(step, k) for k in list(step.raw)}
+        out[name] = {k: _provenance_value(step, k) for k in list(step.raw)}
         step.done()
     steps.done()
-    t.done()
     return out
 
 

@@ -37,6 +37,7 @@ import numpy as np
 from monoguide.daemon.config._calibration import (
     CalibrationTargetConfig,
     CellFrameConfig,
+    part_calibration_gap,
     read_calibration,
     read_calibration_target,
     read_cell_frame,
@@ -125,6 +126,11 @@ class CellConfig:
         return {p.job: self if p.job == self.job else replace(
             self, part=p.part, reference=ReferenceConfig(p.T_cf_w0, self.reference.T_cf_b),
             measuring_poses=p.measuring_poses, layout=p.layout, job=p.job, part_name=p.name) for p in self.parts}
+
+    def calibration_gap(self, job: int) -> str | None:
+        """Why part type ``job`` is not calibrated in this calibrated cell (missing steps, or the cell recalibrated
+        since), or ``None``: its jobs are refused with ``PART_NOT_CALIBRATED`` while there is one."""
+        return part_calibration_gap(self.calibration, job, self.jobs)
 
     def taught_flange_poses(self) -> tuple[np.ndarray, ...]:
         """``T_b_f`` of each measuring pose of this part type: as taught, else from its calibrated camera pose (empty

@@ -23,7 +23,7 @@ from typing import Any
 
 from monoguide.daemon.config import CellConfig
 from monoguide.daemon.cycle import Cause, CycleStateMachine, State
-from monoguide.daemon.errors import CycleAborted, CycleError
+from monoguide.daemon.errors import CycleAborted, CycleError, PartNotCalibrated
 from monoguide.daemon.service._devices import CellDevices
 from monoguide.daemon.service._journal import Journal
 from monoguide.daemon.service._offsets import OffsetLedger
@@ -94,6 +94,13 @@ class Runners:
         """The job rule's one source: the config's part types."""
         return self.config.jobs
 
+    def check_calibrated(self, job: int) -> None:
+        """:class:`PartNotCalibrated` for a part type the wizard has not calibrated in a calibrated cell."""
+        if (gap := self.config.calibration_gap(job)) is not None:
+            part = self.config.for_job(job)
+            raise PartNotCalibrated(f"job {job} ({part.part_name}): not calibrated in {self.config.path}: {gap}; "
+                                    f"nothing moved (monoguide calibrate --job {job} --config {self.config.path})")
+
     def for_devices(self, job: int, camera: Any, robot: Any, images_dir: Path | None) -> Any:
         if self._devices != (camera, robot):
             self.close()
@@ -126,6 +133,7 @@ class CycleTask:
         try:
             self.journal.check_identity()  # a journal deleted or replaced: refuse before the robot moves
             job = check_job(inputs, self.runners.jobs)
+            self.runners.check_calibrated(job)
             images_dir = self.journal.images_dir / f"cycle-{self.journal.next_number()}" if self.keep_images else None
             runner = self.runners.for_devices(job, self.devices.handle("camera"), self.devices.handle("robot"),
                                               images_dir)

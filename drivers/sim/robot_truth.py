@@ -78,9 +78,10 @@ def read_truth(path: Path) -> dict[str, object]:
 def follow_truth(cell: SimCell, path: Path) -> int:
     """Let an in-process :class:`SimCell` (the simulated camera's) stand where the simulated controller's robot
     stands: every stop it made, then its current measuring pose; and hold the part the controller's part
-    supply presents (``T_cf_w``), when it has one. Returns that pose number (0: moving)."""
+    supply presents (``T_cf_w``), when it has one and no operator has put a part of their own in the cell's scene
+    (the calibration wizard's). Returns that pose number (0: moving)."""
     truth = read_truth(path)
-    if truth.get("T_cf_w") is not None:
+    if truth.get("T_cf_w") is not None and (cell.scene is None or cell.scene.part is None):
         if truth.get("part_type") is not None and cell.spec.part_types:
             cell.set_part_type(int(truth["part_type"]))
         cell.set_part_pose(np.asarray(truth["T_cf_w"], dtype=float))

@@ -18,6 +18,7 @@ from helpers.cell_configs import cell_config
 from helpers.plc_line import Line, in_own_event_loop, plc_line
 from helpers.sim_processes import keep_reading, start_sim_cell, stop
 
+from monoguide.daemon.errors import PartNotCalibrated
 from monoguide.daemon.service import Journal
 from monoguide.drivers.errors import PlcUnknownJob
 from monoguide.drivers.plc_registers import Control, Status
@@ -92,3 +93,41 @@ async def test_each_job_measures_its_own_part_and_an_unknown_job_moves_nothing(c
     status = json.loads((state_dir / "status.json").read_text())
     assert {k: status["last_result"][k] for k in ("cycle", "job", "part", "part_tag")} == {
         "cycle": 4, "job": 1, "part": "roof", "part_tag": 14}
+
+
+PARTLY_CALIBRATED = """
+[calibration]  # the wizard calibrated the cell and its first part type (roof); the hood (job 2) never
+date = "2026-12-01T06:00:00+00:00"
+[calibration.steps]
+intrinsics = { done = "2026-12-01T05:00:00+00:00" }
+cell = { done = "2026-12-01T05:01:00+00:00" }
+base = { done = "2026-12-01T05:02:00+00:00" }
+part = { done = "2026-12-01T05:03:00+00:00" }
+sfi = { done = "2026-12-01T05:04:00+00:00" }
+"""
+
+
+@in_own_event_loop
+async def test_a_part_type_the_wizard_has_not_calibrated_refuses_its_jobs_and_nothing_moves(
+        cell: dict[str, Any]) -> None:
+    config = cell["tmp"] / "partly-calibrated.toml"
+    config.write_text(cell["config"].read_text() + PARTLY_CALIBRATED)
+    state_dir = cell["tmp"] / "state-partly"
+    parts_before = len([t for t in cell["truth"].read_text().splitlines() if t.strip()])
+    service = _run(config, state_dir, 1)
+    try:
+        async with plc_line(PLC_HOST, PLC_PORT) as line:
+            status, result = await _part(line, 2, 21)
+        _, err = service.communicate(timeout=60)
+        assert service.returncode == 0, err.decode()[-2000:]
+    finally:
+        if service.poll() is None:
+            service.kill()
+    assert status == Status.DONE | Status.ERROR
+    assert result.error_code == PartNotCalibrated.plc_code == 604 and result.offset == (0.0,) * 6
+    with Journal(state_dir, read_only=True) as journal:
+        (row,) = journal.last_cycles(1)
+    assert (row.job, row.status, row.error_code) == (2, "error", "PART_NOT_CALIBRATED")
+    assert "job 2 (hood)" in row.error_message and "part, sfi" in row.error_message, row.error_message
+    # the robot asked for no measuring pose: the line's part supply brought no part for it
+    assert len([t for t in cell["truth"].read_text().splitlines() if t.strip()]) == parts_before
