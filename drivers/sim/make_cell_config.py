@@ -243,6 +243,9 @@ def cell_config_toml() -> str:
                                                      "server can)"),
         "port": commented(tomlkit.item(5020), "a real PLC: 502"),
         "unit": 1, "base": 0, "word_order": "big", "heartbeat_timeout_s": 2.0}, "docs/plc-interface.md")
+    doc["checks"] = _table({"max_rms_px": 1.5}, "the chi-square test is the statistical check; the RMS bound, on top "
+                           "of it, sits above what the robot's 0.01 deg repeatability puts into a view (f 0.01 deg = "
+                           "0.4 px; docs/cycle.md)")
     sim = _table({
         "seed": 20240601, "repeatability_mm": 0.05, "repeatability_deg": 0.01, "tracker_noise_mm": 0.025,
         "exposure_us_nominal": 8000.0, "focus_distance_mm": number(focus_mm, 1),

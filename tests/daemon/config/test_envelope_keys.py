@@ -15,8 +15,10 @@ from monoguide.solver.envelope import DeviationEnvelope
 def _with(tmp_path: Path, layout: str = "", checks: str = "") -> Path:
     text = SIM_CELL.read_text()
     text = text.replace("[layout]  #", f"[layout]\n{layout}\n#", 1)
+    assert text.count("\n[checks]") == 1
+    text = text.replace("\n[checks]", f"\n[checks]\n{checks}\n#", 1)
     path = tmp_path / "cell.toml"
-    path.write_text(text + (f"\n[checks]\n{checks}\n" if checks else ""))
+    path.write_text(text)
     return path
 
 
