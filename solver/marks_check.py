@@ -3,14 +3,16 @@
 Each block of the model is tested alone by its generalised likelihood ratio (:func:`block_tests`): freeing the
 block, how much does the whitened residual drop? For a good measurement the drop is chi-square with as many degrees
 of freedom as the block has measured directions. A view's camera block is the Mahalanobis distance of its estimated
-correction against the scatter a good camera gives it; a mark's block is its survey against what the rest sees.
+correction against the scatter a good camera gives it; the cameras block is every checked view's together (a move
+common to the views, as of the camera on its bracket, adds up over them); a mark's block is its survey against what
+the rest sees.
 
 The marks' tolerance is a per-cycle false-alarm rate (default 1e-4), split evenly (Bonferroni) over the checked
-views and the marks: a good cycle is refused by it at most that often. The tolerance printed in mm / deg is where
-the test's boundary lies along the direction of the observed deviation. The whole fit's chi-square (the rate of
-:mod:`solver.consistency`, 1e-3 by default) is tested as well; which block explains a misfit best (the smallest
-chance under a good measurement) names the refusal: a mark or the views -> :class:`CalibrationSuspect`, a hole
-centre -> :class:`InconsistentMeasurement`.
+views, the cameras block and the marks: a good cycle is refused by it at most that often. The tolerance printed in
+mm / deg is where the test's boundary lies along the direction of the observed deviation. The whole fit's
+chi-square (the rate of :mod:`solver.consistency`, 1e-3 by default) is tested as well. The block that explains a
+misfit best (the smallest chance under a good measurement) names the refusal: a calibration block beyond its own
+threshold -> :class:`CalibrationSuspect` (the mark, or the views); else :class:`InconsistentMeasurement`.
 """
 
 from __future__ import annotations
@@ -31,9 +33,9 @@ DEFAULT_MARKS_FALSE_ALARM_RATE = 1e-4  # per cycle: the marks' tolerance over ev
 
 @dataclass(frozen=True)
 class BlockTest:
-    """One block's test: ``kind`` view | mark | hole, its ``index`` (view, mark, hole observation), the statistic
-    with its measured directions ``dof``, the ``threshold`` it is held against (None: only used to name a misfit),
-    and the estimated error in whitened units (dof,) along the block's rows."""
+    """One block's test: ``kind`` view | cameras (every checked view's together) | mark | hole, its ``index`` (view,
+    -1, mark, hole observation), the statistic with its measured directions ``dof``, the ``threshold`` it is held
+    against (None: only used to name a misfit), and the estimated error in whitened units along the block's rows."""
 
     kind: str
     index: int
@@ -92,7 +94,7 @@ def assess_marks(
         if not 0.0 < rate < 1.0:
             raise ValueError(f"{name} must lie in (0, 1), got {rate!r}")
     raw = block_tests(result)
-    checked = [b for b in raw if b[0] in ("view", "mark") and b[3] > 0]
+    checked = [b for b in raw if b[0] != "hole" and b[3] > 0]
     per_block = false_alarm_rate / max(len(checked), 1)
     problem = result.problem
     tests = []
@@ -148,11 +150,15 @@ def _refusal(result: MarksResult, tests: list[BlockTest], consistency: Consisten
     if flagged and (best is None or best.kind != "hole"):  # the tolerance: a calibration block beyond its own
         marks = [t for t in flagged if t.kind == "mark"]
         views = [t for t in flagged if t.kind == "view"]
+        joint = [t for t in flagged if t.kind == "cameras"]
         best_is_mark = any(t is best for t in marks)
-        if best_is_mark or not views:
+        if best_is_mark or not (views or joint):
             mark = best if best_is_mark else min(marks, key=lambda t: t.log_chance)
             return CalibrationSuspect(_mark_message(result, mark) + f"; {fit}. Nothing is written to the robot.")
-        text = "; ".join(_view_message(result, t, per_block) for t in views)
+        if views:
+            text = "; ".join(_view_message(result, t, per_block) for t in views)
+        else:
+            text = _joint_message(result, joint[0], per_block)
         return CalibrationSuspect(
             f"{text}. Each view's marks agree with each other and with the holes: the camera moved (its bracket, "
             "the lens) or the measuring pose is not where it was calibrated; run the check job or recalibrate. "
@@ -170,11 +176,17 @@ def _refusal(result: MarksResult, tests: list[BlockTest], consistency: Consisten
         "that view's calibration. Nothing is written to the robot.")
 
 
-def view_deviation(result: MarksResult, test: BlockTest) -> tuple[float, float]:
-    """(mm, deg) of a view's camera from its calibrated pose as its marks alone measure it: the block's estimated
-    error (the prior left out, over the measured directions), not the fit's correction, which the prior shrinks."""
-    e = result.problem.prior_factor() @ test.error
-    return float(np.linalg.norm(e[3:])), math.degrees(float(np.linalg.norm(e[:3])))
+def view_deviation(result: MarksResult, test: BlockTest) -> list[tuple[int, float, float]]:
+    """(view, mm, deg) of each camera of a view block (one) or of the cameras block (every checked view) from its
+    calibrated pose as the marks measure it: the block's estimated error (the prior left out, over the measured
+    directions), not the fit's correction, which the prior shrinks."""
+    views = [test.index] if test.kind == "view" else [v for v, ok in enumerate(result.problem.checked) if ok]
+    F = result.problem.prior_factor()
+    out = []
+    for j, view in enumerate(views):
+        e = F @ test.error[6 * j : 6 * j + 6]
+        out.append((view, float(np.linalg.norm(e[3:])), math.degrees(float(np.linalg.norm(e[:3])))))
+    return out
 
 
 def view_tolerance(result: MarksResult, test: BlockTest) -> np.ndarray:
@@ -196,12 +208,24 @@ def view_tolerance(result: MarksResult, test: BlockTest) -> np.ndarray:
 
 def _view_message(result: MarksResult, test: BlockTest, per_block: float) -> str:
     camera = result.cameras[test.index]
-    mm, deg = view_deviation(result, test)
+    [(_, mm, deg)] = view_deviation(result, test)
     scale = math.sqrt(test.threshold / test.statistic) if test.threshold and test.statistic > 0 else float("nan")
     return (f"view {camera.view}: the camera stood {mm:.2f} mm / {deg:.3f} deg from its calibrated pose "
             f"(tolerance {scale * mm:.2f} mm / {scale * deg:.3f} deg in that direction: Mahalanobis "
             f"distance {math.sqrt(test.statistic):.1f} > {math.sqrt(test.threshold or 0.0):.1f} over {test.dof} "
             f"measured directions, false-alarm rate {per_block:.2g} per view)")
+
+
+def _joint_message(result: MarksResult, test: BlockTest, per_block: float) -> str:
+    scale = math.sqrt(test.threshold / test.statistic) if test.threshold and test.statistic > 0 else float("nan")
+    deviations = view_deviation(result, test)
+    names = ", ".join(result.cameras[v].view for v, _, _ in deviations)
+    stood = ", ".join(f"{mm:.2f} mm / {deg:.3f} deg" for _, mm, deg in deviations)
+    tolerance = ", ".join(f"{scale * mm:.2f} mm / {scale * deg:.3f} deg" for _, mm, deg in deviations)
+    return (f"views {names} together: the cameras stood {stood} from their calibrated poses, a move common to the "
+            f"views (tolerance {tolerance} in that direction: Mahalanobis distance {math.sqrt(test.statistic):.1f} > "
+            f"{math.sqrt(test.threshold or 0.0):.1f} over {test.dof} measured directions, false-alarm rate "
+            f"{per_block:.2g}; no view alone is beyond its own)")
 
 
 def _mark_message(result: MarksResult, test: BlockTest) -> str:
@@ -218,6 +242,9 @@ def _mark_message(result: MarksResult, test: BlockTest) -> str:
 
 
 def _block_name(problem: MarksProblem, kind: str, index: int) -> str:
+    if kind == "cameras":
+        return "the cameras of views " + ", ".join(n for n, ok in zip(problem.view_names, problem.checked,
+                                                                      strict=True) if ok) + " together"
     if kind == "view":
         return f"view {problem.view_names[index]}"
     if kind == "mark":

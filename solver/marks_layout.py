@@ -19,7 +19,7 @@ import numpy as np
 
 from monoguide.solver import frames
 from monoguide.solver.camera import CameraModel
-from monoguide.solver.marks import MARK_SIGMA_MM, ReferenceMark
+from monoguide.solver.marks_problem import MARK_SIGMA_MM, ReferenceMark
 from monoguide.solver.planning.errors import LayoutOutOfView
 
 

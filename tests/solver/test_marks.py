@@ -15,7 +15,7 @@ import pytest
 from monoguide.solver import frames
 from monoguide.solver.errors import CalibrationSuspect, InconsistentMeasurement, NonFiniteValue, PointBehindCamera
 from monoguide.solver.marks import MarksProblem, ReferenceMark, _Model, fit_marks
-from monoguide.solver.marks_check import as_pose_result, solve_with_marks
+from monoguide.solver.marks_check import as_pose_result, assess_marks, solve_with_marks
 from monoguide.solver.marks_layout import place_marks
 from monoguide.solver.marks_synthetic import marked_paper_roof_cell, repeatability_at_flange
 from monoguide.solver.planning import LayoutOutOfView
@@ -93,6 +93,19 @@ def test_a_camera_bumped_by_03_deg_is_refused_naming_the_view_in_mm_and_deg(axis
     # the bump as the marks see it: about the optical axis all of it; about x or y a share of it is indistinguishable
     # from a sideways shift with marks in one plane straight below the camera (the shift is named in mm)
     assert len(named) == 4 and all((0.28 if axis == 2 else 0.2) < d < 0.32 for d in named), named
+
+
+def test_a_small_common_bump_is_caught_by_the_views_together():
+    bump = np.array([0.0, 0.0, math.radians(0.06), 0.0, 0.0, 0.0])  # below each view's own tolerance (~0.066 deg)
+    _, _, problem = _scene(70, bump)
+    result = fit_marks(problem)
+    with pytest.raises(CalibrationSuspect) as refused:
+        solve_with_marks(problem)
+    assessment = assess_marks(result)
+    assert assessment.test("cameras", -1).exceeded
+    assert not any(assessment.test("view", v).exceeded for v in range(4))
+    assert str(refused.value).startswith("views S1, S2, S3, S4 together: the cameras stood "), str(refused.value)
+    assert "no view alone is beyond its own" in str(refused.value)
 
 
 def test_a_good_cycle_passes_and_reads_as_a_pose_result():
