@@ -5,7 +5,9 @@ the simulated robot controller on ``[robot] host:port`` with the part supply (on
 ``--truth-log``); and, with a ``[plc]`` section and without ``--no-plc``, the simulated line PLC on ``[plc]
 host:port`` (its per-part records are echoed to stdout as ``plc: {...}``; ``--parts N``: it plays N parts, then
 only beats its heartbeat). Where each device listens goes to stdout and to a JSON state file that ``monoguide
-probe`` (and ``run``) read; fault commands on standard input (``fault: ...`` / ``fault error: ...``), the grasp
+probe`` (and ``run``) read; fault commands on standard input (``fault: ...`` / ``fault error: ...``; the
+persistent calibration faults ``camera bump DEG MM [AXIS]``, ``camera focal PCT``, ``pose drift K MM DEG`` among
+them, daemon/simulate/_fault_channel.py), the grasp
 relayed between the line and the robot (``grasp: {...}``). What runs the cell is
 :class:`~monoguide.daemon.simulate.SimulatedCell`; this module is the command: its options, what it says and
 how it ends.
@@ -59,7 +61,8 @@ def sim_cell(
     ] = None,
 ) -> None:
     """Start the simulated cell's device processes and keep them running until Ctrl-C or SIGTERM; fault commands
-    on standard input (plc|robot <fault>, camera <failure> \\[count])."""
+    on standard input (plc|robot <fault>, camera <failure> \\[count]) and calibration faults until cleared (camera
+    bump DEG MM \\[AXIS], camera focal PCT, pose drift K MM DEG)."""
     with _stop_signals() as stop:
         try:
             cfg = load_cell_config(config)
@@ -111,4 +114,5 @@ def _say_where(cfg: CellConfig, cell: SimulatedCell, parts: int | None) -> None:
         typer.echo(f"--parts {parts} ignored: no simulated PLC plays parts", err=True)
     typer.echo(f"state file {cell.state_path}")
     typer.echo("running; Ctrl-C or SIGTERM stops the simulated cell; faults on stdin: plc|robot <fault>, "
-               "camera <failure> [count]", err=True)
+               "camera <failure> [count]; calibration faults (until cleared): camera bump DEG MM [AXIS], "
+               "camera focal PCT, pose drift K MM DEG", err=True)

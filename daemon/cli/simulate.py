@@ -62,10 +62,12 @@ def simulate(
     robot: Annotated[str | None, typer.Option("--robot", help="ur or kuka (the simulated controller)")] = None,
     perfect_robot: Annotated[bool, typer.Option("--perfect-robot", help="no repeatability noise")] = False,
     faults: Annotated[
-        bool, typer.Option("--faults", help="inject each device and PLC fault in turn, among good cycles")
+        bool, typer.Option("--faults", help="inject each device and PLC fault in turn, among good cycles, then the "
+                                            "calibration faults, each for a few parts")
     ] = False,
     fault: Annotated[
-        list[str] | None, typer.Option("--fault", help="with --faults: only this one, e.g. 'robot stall' (repeatable)")
+        list[str] | None, typer.Option("--fault", help="with --faults: only this one, e.g. 'robot stall', or a "
+                                                       "calibration fault, e.g. 'camera bump 0.1 0' (repeatable)")
     ] = None,
     config: Annotated[Path | None, typer.Option("--config", "-c", help="simulated cell config (TOML)")] = None,
     calibration: Annotated[Path | None, typer.Option(

@@ -1,10 +1,23 @@
 """What ``monoguide simulate --faults`` injects, and when: every device and PLC fault of the simulated cell, each
-with the error codes any of which reports it, sent to sim-cell's standard input before a part and cleared after it.
+with the error codes any of which reports it, sent to sim-cell's standard input before a part and cleared after it;
+then the calibration faults (:data:`CALIBRATION_FAULT_PLAN`), a group of its own that persists over several parts.
 
 After :data:`GOOD_BEFORE_FAULTS` good cycle(s) each fault gets its part, with a good one between faults, so a
 fault's effect never runs into the next. ``robot <fault>`` is cleared (``robot none``) once its part is done; ``plc
 heartbeat-stopped`` after 2.5 heartbeat timeouts (the service must have seen the heartbeat stop, whether or not
 a part finished meanwhile); a camera failure lasts its one grab (``camera <failure> 1``).
+
+A calibration fault (``camera bump DEG MM [AXIS]``, ``camera focal PCT``, ``pose drift K MM DEG``; sim-cell's
+commands, daemon/simulate/_fault_channel.py) is injected before a part and stays for
+:data:`CALIBRATION_FAULT_PARTS` parts, then is cleared (``camera bump 0 0``, ``camera focal 0``, ``pose drift K 0
+0``) before a good part. Three, because a calibrated cell's fault is not an event of one cycle: what it costs
+depends on where the part lies and on the robot's stop, so one cycle would be a sample of one, and three show
+whether it is refused always, sometimes or never while keeping ``--faults`` short. Parts the run has beyond what
+the plan needs (``--cycles`` longer) lengthen the calibration faults, shared out evenly (the first get the rest):
+``--fault 'camera bump 0.1 0' --cycles 10`` keeps the bump on for parts 2 to 9. Their codes are the ones a
+refusal of a calibration fault may give; a cycle under one may also be OK (today's cycle cannot see most of them),
+so the summary tells per fault the cycles ok with their grasp error and the cycles refused with their codes,
+and expects nothing.
 """
 
 from __future__ import annotations
@@ -12,10 +25,12 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from monoguide.daemon.simulate._fault_channel import CALIBRATION_COMMANDS, parse_bump, parse_drift, parse_focal
 from monoguide.drivers.errors import ConfigError
 
 GOOD_BEFORE_FAULTS = 1
 HEARTBEAT_CLEAR_AFTER = 2.5  # heartbeat timeouts: `plc heartbeat-stopped` is cleared this long after it started
+CALIBRATION_FAULT_PARTS = 3  # parts a calibration fault stays for (at least; see the module's doc)
 
 Fault = tuple[str, str, tuple[str, ...]]  # device, fault, the error codes any of which reports it
 
@@ -38,6 +53,17 @@ FAULT_PLAN: tuple[Fault, ...] = (
     ("plc", "heartbeat-stopped", ("PLC_HEARTBEAT_LOST", "CYCLE_ABORTED")),
 )
 
+# the codes with which today's cycle may refuse a cycle under a calibration fault (it may also not refuse it)
+CALIBRATION_CODES: tuple[str, ...] = ("CALIBRATION_SUSPECT", "INCONSISTENT_MEASUREMENT", "RESIDUAL_TOO_LARGE")
+# issue 20's table ("Why"), and a focal change and a pose drift of its targets
+CALIBRATION_FAULT_PLAN: tuple[Fault, ...] = (
+    ("camera", "bump 0 1 x", CALIBRATION_CODES),
+    ("camera", "bump 0.1 0 x", CALIBRATION_CODES),
+    ("camera", "bump 0.3 0 y", CALIBRATION_CODES),
+    ("camera", "focal 0.5", CALIBRATION_CODES),
+    ("pose", "drift 1 0.3 0.05", CALIBRATION_CODES),
+)
+
 
 @dataclass(frozen=True)
 class InjectedFault:
@@ -47,6 +73,8 @@ class InjectedFault:
     device: str  # plc | robot | camera
     name: str
     expected: tuple[str, ...]  # error codes any of which reports it
+    parts: int = 1  # the parts it stays for (a calibration fault: several)
+    calibration: bool = False  # a calibration fault: its cycles may be OK, the summary tells what they cost
 
     @property
     def label(self) -> str:
@@ -54,17 +82,49 @@ class InjectedFault:
 
 
 def fault_plan(names: tuple[str, ...] = ()) -> tuple[Fault, ...]:
-    """The faults to inject: those of :data:`FAULT_PLAN` named ``"device name"`` (all when none are named)."""
+    """The faults to inject: those of :data:`FAULT_PLAN` named ``"device name"`` (all of it when none are named),
+    and calibration faults named by their sim-cell command (``"camera bump 0.1 0"``: any values, in their normal
+    form ``("camera", "bump 0.1 0 x", CALIBRATION_CODES)``). A name neither is a :class:`ConfigError`."""
     known = {f"{device} {name}": (device, name, codes) for device, name, codes in FAULT_PLAN}
+    out = []
     for wanted in names:
-        if wanted not in known:
-            raise ConfigError(f"--fault {wanted!r}: expected one of {', '.join(known)}")
-    return tuple(known[n] for n in names) if names else FAULT_PLAN
+        if wanted in known:
+            out.append(known[wanted])
+            continue
+        device, _, rest = wanted.partition(" ")
+        fault, *words = rest.split() or [""]
+        if fault not in CALIBRATION_COMMANDS.get(device, ()):
+            raise ConfigError(f"--fault {wanted!r}: expected one of {', '.join(known)}, or a calibration fault: "
+                              f"camera bump DEG MM [AXIS], camera focal PCT, pose drift K MM DEG")
+        try:
+            out.append((device, _normal_form(wanted, fault, words), CALIBRATION_CODES))
+        except ValueError as exc:
+            raise ConfigError(f"--fault {exc}") from None
+    return tuple(out) if names else FAULT_PLAN
+
+
+def faults_to_inject(names: tuple[str, ...] = ()) -> tuple[Fault, ...]:
+    """What ``--faults`` injects: the named faults (:func:`fault_plan`), or with none named every device fault of
+    :data:`FAULT_PLAN`, then :data:`CALIBRATION_FAULT_PLAN`."""
+    return fault_plan(names) if names else FAULT_PLAN + CALIBRATION_FAULT_PLAN
+
+
+def is_calibration_fault(device: str, name: str) -> bool:
+    return name.split()[0] in CALIBRATION_COMMANDS.get(device, ()) if name else False
 
 
 def cycles_needed_for_faults(names: tuple[str, ...] = ()) -> int:
-    """One good cycle first, then each fault followed by a good cycle."""
-    return GOOD_BEFORE_FAULTS + 2 * len(fault_plan(names))
+    """One good cycle first, then each fault (a calibration fault for its parts) followed by a good cycle."""
+    return GOOD_BEFORE_FAULTS + sum(1 + _parts(device, name) for device, name, _ in faults_to_inject(names))
+
+
+def calibration_clear(device: str, name: str) -> str:
+    """The sim-cell command that clears a calibration fault: ``camera bump 0 0``, ``camera focal 0``, ``pose drift
+    K 0 0``."""
+    fault, *words = name.split()
+    if fault == "drift":
+        return f"pose drift {words[0]} 0 0"
+    return f"{device} {fault} 0" + (" 0" if fault == "bump" else "")
 
 
 class FaultInjector:
@@ -76,7 +136,8 @@ class FaultInjector:
         self._send, self._note = send, note
         self._schedule = _schedule(total, plan)
         self._heartbeat_timeout_s = heartbeat_timeout_s
-        self._clear: tuple[str, float | None] | None = None  # (command, at monotonic time; None: after the part)
+        # (command, at monotonic time; None: after its parts, how many are left)
+        self._clear: tuple[str, float | None, int] | None = None
         self.injected: list[InjectedFault] = []
 
     def before_part(self, done: int, now: float) -> None:
@@ -86,21 +147,27 @@ class FaultInjector:
             self._clear_now()
         if done not in self._schedule or any(f.cycle == done + 1 for f in self.injected):
             return
-        device, name, expected = self._schedule[done]
+        (device, name, expected), parts = self._schedule[done]
         if self._clear is not None:  # the previous fault ends before the next one starts
             self._clear_now()
-        self._send(f"{device} {name}" + (" 1" if device == "camera" else ""))
-        self.injected.append(InjectedFault(done + 1, device, name, expected))
-        self._note(f"cycle {done + 1}: injecting {device} {name}")
-        if device == "plc" and name == "heartbeat-stopped":
-            self._clear = ("plc none", now + HEARTBEAT_CLEAR_AFTER * self._heartbeat_timeout_s)
+        calibration = is_calibration_fault(device, name)
+        self._send(f"{device} {name}" + (" 1" if device == "camera" and not calibration else ""))
+        self.injected.append(InjectedFault(done + 1, device, name, expected, parts, calibration))
+        self._note(f"cycle {done + 1}: injecting {device} {name}" + (f" for {parts} parts" if parts > 1 else ""))
+        if calibration:
+            self._clear = (calibration_clear(device, name), None, parts)
+        elif device == "plc" and name == "heartbeat-stopped":
+            self._clear = ("plc none", now + HEARTBEAT_CLEAR_AFTER * self._heartbeat_timeout_s, 0)
         elif device != "camera":
-            self._clear = (f"{device} none", None)
+            self._clear = (f"{device} none", None, 1)
 
     def part_done(self) -> None:
-        """A part finished: clear the fault that lasts one part."""
+        """A part finished: clear the fault whose parts are done."""
         if self._clear is not None and self._clear[1] is None:
-            self._clear_now()
+            command, _, left = self._clear
+            self._clear = (command, None, left - 1)
+            if left <= 1:
+                self._clear_now()
 
     def _clear_now(self) -> None:
         assert self._clear is not None
@@ -108,6 +175,35 @@ class FaultInjector:
         self._clear = None
 
 
-def _schedule(total: int, plan: tuple[Fault, ...]) -> dict[int, Fault]:
-    """Which fault to inject after how many finished parts: a good one first, then one every other part."""
-    return {GOOD_BEFORE_FAULTS + 2 * k: fault for k, fault in enumerate(plan) if GOOD_BEFORE_FAULTS + 2 * k < total - 1}
+def _schedule(total: int, plan: tuple[Fault, ...]) -> dict[int, tuple[Fault, int]]:
+    """Which fault to inject after how many finished parts, and for how many parts: a good one first, then each
+    fault for its parts and a good part after it; the parts to spare go to the calibration faults."""
+    parts = [_parts(device, name) for device, name, _ in plan]
+    calibration = [k for k, (device, name, _) in enumerate(plan) if is_calibration_fault(device, name)]
+    spare = total - GOOD_BEFORE_FAULTS - sum(1 + n for n in parts)
+    if calibration and spare > 0:
+        share, rest = divmod(spare, len(calibration))
+        for j, k in enumerate(calibration):
+            parts[k] += share + (j < rest)
+    out, start = {}, GOOD_BEFORE_FAULTS
+    for fault, n in zip(plan, parts, strict=True):
+        if start + n > total - 1:  # no good part after it
+            break
+        out[start] = (fault, n)
+        start += n + 1
+    return out
+
+
+def _parts(device: str, name: str) -> int:
+    return CALIBRATION_FAULT_PARTS if is_calibration_fault(device, name) else 1
+
+
+def _normal_form(text: str, fault: str, words: list[str]) -> str:
+    """A calibration fault's name as sim-cell echoes it (``bump 0.1 0 x``); a :class:`ValueError` naming the value."""
+    if fault == "bump":
+        deg, mm, axis = parse_bump(text, words)
+        return f"bump {deg:g} {mm:g} {axis}"
+    if fault == "focal":
+        return f"focal {parse_focal(text, words):g}"
+    number, mm, deg = parse_drift(text, words)
+    return f"drift {number} {mm:g} {deg:g}"

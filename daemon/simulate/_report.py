@@ -75,6 +75,15 @@ def markdown(cycles: Sequence[dict[str, Any]], summary: dict[str, Any], command:
         lines += [f"| {f['cycle']} | {f['fault']} | {' / '.join(f['expected'])} | {f['got'] or '-'} | "
                   f"{'yes' if f['reported'] else '**no**'} | {'yes' if f['back_ready'] else '**no**'} |"
                   for f in summary["faults"]]
+    if calibration := [f for f in summary["faults"] if f.get("calibration")]:
+        lines += ["", "## Calibration faults", "", "Each stays for its cycles, then is cleared; a cycle under one "
+                  "may be OK: the grasp error (truth log) says what that cost.", "",
+                  "| cycles | fault | ok | refused (codes) | grasp RMS / max of the ok, mm | ok beyond 0.5 mm |",
+                  "|---|---|---|---|---|---|"]
+        lines += [f"| {_span(f['cycles'])} | {f['fault']} | {f['ok']} of {len(f['cycles'])} | "
+                  f"{sum(f['refused'].values())} ({', '.join(f'{k} {v}' for k, v in f['refused'].items()) or '-'}) | "
+                  f"{fixed(f['grasp_rms_mm'], 3)} / {fixed(f['grasp_max_mm'], 3)} | {f['ok_beyond_requirement']} |"
+                  for f in calibration]
     lines += ["", "## Plots", ""] + [f"![{name}]({name})" for name in pictures]
     lines += ["", "## Time split, median over the good cycles (ms)", "", "| stage | ms |", "|---|---|"]
     lines += [f"| {k} | {fixed(v, 2)} |" for k, v in summary["timings_ms_median"].items()]
@@ -168,3 +177,7 @@ def draw_offsets(cycles: Sequence[dict[str, Any]]) -> Figure:
         ax.legend(loc="upper right")
     figure.suptitle("Base offsets over the run, robot base frame: written against ideal")
     return figure
+
+
+def _span(cycles: list[int]) -> str:
+    return "-" if not cycles else str(cycles[0]) if len(cycles) == 1 else f"{cycles[0]}–{cycles[-1]}"

@@ -5,8 +5,9 @@ its truth log, the tracker) starts first; once it says where its devices listen,
 N`` starts against the same derived config (with ``--faults`` without ``--cycles``: it is stopped after the
 last part). Progress comes from the line: the simulated PLC's record of every part it played (``plc:
 {...}`` on sim-cell's standard output). With ``--faults`` each device and PLC fault is sent to sim-cell's
-standard input in turn, between good cycles (:mod:`._fault_plan`). The service's resident memory, threads and
-open files are sampled from ``/proc`` while it runs (the last sample is "at the end").
+standard input in turn, between good cycles, then the calibration faults, each for a few parts
+(:mod:`._fault_plan`). The service's resident memory, threads and open files are sampled from ``/proc`` while it
+runs (the last sample is "at the end").
 
 Every wait has a deadline and says what it waited for; Ctrl-C or SIGTERM stops the service first, then the
 cell (:class:`~._children.Children`), and so does every other way the run ends.
@@ -29,9 +30,10 @@ from monoguide.daemon.errors import SimulateChildEnded, SimulateTimeout
 from monoguide.daemon.service import JournalRow
 from monoguide.daemon.simulate._children import STOP_TIMEOUT_S, Child, Children, LineReader
 from monoguide.daemon.simulate._config import DerivedCell, derive_config
-from monoguide.daemon.simulate._fault_plan import FaultInjector, InjectedFault, fault_plan
+from monoguide.daemon.simulate._fault_plan import Fault, FaultInjector, InjectedFault, faults_to_inject
 from monoguide.daemon.simulate._sampling import sample_process
 from monoguide.daemon.simulate._witnesses import logged_codes, read_journal_rows, read_truth_log
+from monoguide.drivers.errors import ConfigError
 
 CELL_START_TIMEOUT_S = 90.0  # building the cell and starting three device processes on a busy machine
 SERVICE_START_TIMEOUT_S = 60.0  # service start + devices connected + first part finished
@@ -51,7 +53,7 @@ class RunOptions:
     perfect_robot: bool = False
     faults: bool = False
     host: str | None = None
-    fault_names: tuple[str, ...] = ()  # "device name" of FAULT_PLAN to inject (empty: every one)
+    fault_names: tuple[str, ...] = ()  # "device name" of FAULT_PLAN, or calibration faults, to inject (empty: all)
     calibration: Path | None = None  # the service runs with this file's calibration values (the cell: config's)
     jobs: tuple[int, ...] = ()  # the part types the line brings, in turn (empty: every job of the config in turn)
 
@@ -91,6 +93,8 @@ def run_simulation(options: RunOptions, progress: Progress | None = None) -> Run
     cell = derive_config(options.config, options.work_dir, seed=options.seed, robot=options.robot,
                          perfect_robot=options.perfect_robot, host=options.host, faults=options.faults,
                          calibration=options.calibration, jobs=options.jobs)
+    plan = faults_to_inject(options.fault_names) if options.faults else ()
+    _check_poses(plan, cell)
     cell.state_dir.mkdir(parents=True, exist_ok=True)
     logs = options.work_dir.resolve()
     with _sigterm_interrupts(), Children() as children:
@@ -108,7 +112,7 @@ def run_simulation(options: RunOptions, progress: Progress | None = None) -> Run
         service = children.start("service", [
             sys.executable, "-m", "monoguide.daemon.cli", "run", "--config", str(cell.service), "--state-dir",
             str(cell.state_dir), *until], logs / "service.log")
-        records, faults, samples = _play(options, cell, sim, service, progress)
+        records, faults, samples = _play(options, cell, sim, service, progress, plan)
         service_exit = _finish_service(service, progress, by_itself=not options.faults)
     return RunResult(cell, records, read_journal_rows(cell.state_dir), read_truth_log(cell.truth_log, grasps=True),
                      faults, samples, logged_codes(service.log), service_exit, time.monotonic() - started)
@@ -146,14 +150,23 @@ def _wait_listening(sim: Child) -> None:
                           f"its output: {' | '.join(lines.seen[-5:]) or '(none)'}; {sim.log}: {sim.tail()}")
 
 
-def _play(options: RunOptions, cell: DerivedCell, sim: Child, service: Child,
-          progress: Progress) -> tuple[list[dict[str, Any]], list[InjectedFault], list[dict[str, float]]]:
+def _check_poses(plan: tuple[Fault, ...], cell: DerivedCell) -> None:
+    """A pose drift names a robot pose number the run's cell has (a :class:`ConfigError` before anything starts)."""
+    poses = len(cell.data.get("measuring_poses", ()))
+    for device, name, _ in plan:
+        if device == "pose" and not 1 <= int(name.split()[1]) <= poses:
+            raise ConfigError(f"--fault '{device} {name}': pose number {name.split()[1]}: the cell "
+                              f"{cell.config} has measuring poses 1 to {poses}")
+
+
+def _play(options: RunOptions, cell: DerivedCell, sim: Child, service: Child, progress: Progress,
+          plan: tuple[Fault, ...]) -> tuple[list[dict[str, Any]], list[InjectedFault], list[dict[str, float]]]:
     """Collect the line's records of ``options.cycles`` parts, injecting faults, sampling the service."""
     total, lines = options.cycles, _lines(sim)
     records: list[dict[str, Any]] = []
     samples: list[dict[str, float]] = []
-    injector = FaultInjector(sim.send, total, fault_plan(options.fault_names) if options.faults else (),
-                             float(cell.data["plc"].get("heartbeat_timeout_s", 2.0)), progress.note)
+    injector = FaultInjector(sim.send, total, plan, float(cell.data["plc"].get("heartbeat_timeout_s", 2.0)),
+                             progress.note)
     part_timeout = FAULT_PART_TIMEOUT_S if options.faults else PART_TIMEOUT_S
     deadline = time.monotonic() + SERVICE_START_TIMEOUT_S + part_timeout
     service_gone_at: float | None = None

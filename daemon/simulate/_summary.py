@@ -2,6 +2,12 @@
 witnesses: counts, errors by code, the grasp error, the time split, the offsets written on failure, the grasps
 the robot's interlock ran or refused, the service's memory, each injected fault's outcome, and the targets with
 whether each was met (a benchmark: missing one does not fail the run).
+
+A calibration fault's outcome is what happened over its parts: the cycles ok with their grasp error (truth log),
+those beyond the paper's 0.5 mm, and those refused with their codes; it expects no refusal. The run's grasp error
+(RMS, max, the grasp target) is that of the good cycles under no calibration fault; the target
+``calibration_faults_ok_beyond_0.5mm`` (issue 20: no confident wrong answer) counts the cycles ok beyond 0.5 mm
+under one.
 """
 
 from __future__ import annotations
@@ -77,6 +83,7 @@ def summarize(cycles: Sequence[dict[str, Any]], truth: Sequence[dict[str, Any]],
     rows = list(journal_rows)
     logged = set(logged_codes)
     good = [c for c in cycles if c["status"] == "ok"]
+    miscalibrated = {c for f in faults if f.calibration for c in range(f.cycle, f.cycle + f.parts)}
     errors: Counter[str] = Counter()
     counted_rows = set()
     for c in cycles:
@@ -88,7 +95,7 @@ def summarize(cycles: Sequence[dict[str, Any]], truth: Sequence[dict[str, Any]],
     for row in rows:  # a cycle the line did not see as one of its parts (a trigger it dropped, say)
         if row.status == "error" and row.number not in counted_rows:
             errors[row.error_code] += 1
-    grasped = [c for c in good if c["grasp_error_mm"] is not None]
+    grasped = [c for c in good if c["grasp_error_mm"] is not None and c["cycle"] not in miscalibrated]
     mm = [float(c["grasp_error_mm"]) for c in grasped]
     deg = [float(c["grasp_error_deg"]) for c in grasped]
     on_failure, unacknowledged = _offsets_on_failure(cycles, truth, rows)
@@ -166,6 +173,8 @@ def _grasp_counts(truth: Sequence[dict[str, Any]]) -> dict[str, int]:
 
 def _fault_outcome(fault: InjectedFault, cycles: Sequence[dict[str, Any]], logged: set[str]) -> dict[str, Any]:
     """Was the fault reported with one of its codes, and did a good cycle follow (READY without a restart)?"""
+    if fault.calibration:
+        return _calibration_outcome(fault, cycles)
     hit = [c for c in cycles if c["cycle"] >= fault.cycle][:2]
     got = [c["error_code"] for c in hit if c["error_code"]] + [
         "LINE_" + str(c["line_outcome"]).upper().replace(" ", "_") for c in hit
@@ -177,6 +186,29 @@ def _fault_outcome(fault: InjectedFault, cycles: Sequence[dict[str, Any]], logge
             "got": ", ".join(dict.fromkeys(got)) or None,
             "reported": any(code.split()[0] in fault.expected for code in got),
             "back_ready": any(c["status"] == "ok" for c in later)}
+
+
+def _calibration_outcome(fault: InjectedFault, cycles: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """What a calibration fault's cycles did: ok (their grasp error) or refused (their codes); nothing expected."""
+    under = [c for c in cycles if fault.cycle <= c["cycle"] < fault.cycle + fault.parts]
+    ok = [c for c in under if c["status"] == "ok"]
+    mm = [float(c["grasp_error_mm"]) for c in ok if c["grasp_error_mm"] is not None]
+    deg = [float(c["grasp_error_deg"]) for c in ok if c["grasp_error_deg"] is not None]
+    refused = Counter(c["error_code"] or (f"PLC_CODE_{c['plc_code']}" if c["plc_code"] else "NO_CYCLE")
+                      for c in under if c["status"] != "ok")
+    beyond = sum(v > PAPER_REQUIREMENT_MM for v in mm)
+    later = [c for c in cycles if c["cycle"] >= fault.cycle + fault.parts]
+    grasp = (f"grasp RMS {_rms(mm):.3f} / max {max(mm):.3f} mm, {beyond} beyond {PAPER_REQUIREMENT_MM:g} mm"
+             if mm else "no grasp error")
+    refusals = ", ".join(f"{n} {code}" for code, n in sorted(refused.items())) or "none refused"
+    return {"cycle": fault.cycle, "fault": fault.label, "expected": list(fault.expected), "calibration": True,
+            "parts": fault.parts, "cycles": [c["cycle"] for c in under],
+            "got": f"{len(ok)} of {len(under)} ok ({grasp}); {refusals}",
+            "reported": any(code in fault.expected for code in refused), "back_ready": any(c["status"] == "ok"
+                                                                                         for c in later),
+            "ok": len(ok), "refused": dict(sorted(refused.items())), "grasp_errors_mm": mm, "grasp_errors_deg": deg,
+            "grasp_rms_mm": _rms(mm), "grasp_max_mm": max(mm) if mm else None, "grasp_rms_deg": _rms(deg),
+            "grasp_max_deg": max(deg) if deg else None, "ok_beyond_requirement": beyond}
 
 
 def _grasp_judgement(mm: Sequence[float], deg: Sequence[float], targets: Targets) -> dict[str, Any]:
@@ -215,9 +247,13 @@ def _targets(summary: dict[str, Any], targets: Targets, per_job: bool = False) -
         target("compute_ms_median", summary["compute_ms_median"], targets.compute_ms),
         target("offsets_written_on_failure", summary["offsets_written_on_failure"], 0, le=False),
     ]
-    if summary["faults"]:
-        reported = sum(f["reported"] and f["back_ready"] for f in summary["faults"])
-        out.append(target("faults_reported_and_ready", reported, len(summary["faults"]), le=False))
+    device = [f for f in summary["faults"] if not f.get("calibration")]
+    if device:
+        reported = sum(f["reported"] and f["back_ready"] for f in device)
+        out.append(target("faults_reported_and_ready", reported, len(device), le=False))
+    if calibration := [f for f in summary["faults"] if f.get("calibration")]:
+        out.append(target(f"calibration_faults_ok_beyond_{PAPER_REQUIREMENT_MM:g}mm",
+                          sum(f["ok_beyond_requirement"] for f in calibration), 0, le=False))
     return out
 
 

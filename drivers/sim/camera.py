@@ -13,6 +13,13 @@ file's ``robot.truth`` and stands where that robot stands, with the part its par
 sim-cell) once per ``serial``. A fault already in the file when the camera opens is history, not applied.
 Without a state file (no sim-cell running) it renders its own cell as without ``follow``.
 
+Calibration faults (:mod:`~monoguide.drivers.sim.calibration_faults`: the camera bumped on its bracket, its lens's
+focal length changed, a measuring pose that stops elsewhere while the robot reports the taught pose) persist:
+the entry ``camera_fault.calibration`` of the state file (``camera bump|focal ...``, ``pose drift ...`` to
+sim-cell) holds the ones the cell has now, read before every grab (one there when the camera opens applies: it is
+the state of the cell, not an event), and :meth:`SimCamera.set_calibration_faults` sets them without a sim-cell.
+The part's holes are rendered through them (the scene mode's targets and plate are not).
+
 Scene mode (``monoguide calibrate --sim``): when the cell has a :class:`~monoguide.drivers.sim.cell.SimScene`
 (set by the simulated operator), the camera renders what is in front of it: the circle plate held in view,
 else a calibration target lying under it (its circular marks,
@@ -34,6 +41,7 @@ import numpy as np
 
 from monoguide.drivers.camera import CameraIdentity, CameraSettings, Frame
 from monoguide.drivers.errors import DeviceDisconnected, DeviceSettingRejected, DeviceTimeout
+from monoguide.drivers.sim.calibration_faults import CalibrationFaults
 from monoguide.drivers.sim.cell import SimCell, SimScene
 from monoguide.drivers.sim.hole_renderer import Glare, HoleSpec, RenderedView, RenderSettings, render_view
 from monoguide.drivers.sim.robot_motion import follow_truth
@@ -66,6 +74,8 @@ class SimCamera:
         self._open = False
         self._frames = 0
         self._failures: list[str] = []
+        self.calibration_faults = CalibrationFaults()
+        self._calibration_serial: int | None = None
         self._identity = CameraIdentity("monoguide", "SimCamera", f"SIM-{cell.spec.seed}", None, "1.0")
 
     @property
@@ -97,6 +107,10 @@ class SimCamera:
         if failure not in FAILURES:
             raise ValueError(f"failure {failure!r} must be one of {FAILURES}")
         self._failures.extend([failure] * count)
+
+    def set_calibration_faults(self, faults: CalibrationFaults) -> None:
+        """From the next grab on, render through ``faults`` (until set again; ``CalibrationFaults()``: none)."""
+        self.calibration_faults = faults
 
     def grab(self, timeout_s: float) -> Frame:
         self._require_open()
@@ -148,8 +162,9 @@ class SimCamera:
                 self.fail_next(str(fault["failure"]), int(fault.get("count", 1)))  # type: ignore[index,union-attr]
                 log.info("sim camera: %s for the next %s grabs (fault %d)", fault["failure"],  # type: ignore[index]
                          fault.get("count", 1), serial)  # type: ignore[union-attr]
-            except (ValueError, TypeError) as exc:
+            except (ValueError, TypeError, KeyError) as exc:
                 log.warning("sim camera: ignoring camera_fault %r: %s", fault, exc)
+        self._take_calibration_faults(fault.get("calibration") if isinstance(fault, dict) else None)
         truth = (state.get("robot") or {}).get("truth")
         if not truth:  # no sim-cell (or one without a robot): the camera's own cell, at its own pose
             return
@@ -157,6 +172,21 @@ class SimCamera:
             follow_truth(self.cell, Path(truth))
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise DeviceDisconnected(f"sim camera: cannot follow the simulated robot ({truth}): {exc}") from exc
+
+    def _take_calibration_faults(self, entry: object) -> None:
+        """The state file's calibration faults become the camera's (a malformed entry: logged, the last kept)."""
+        serial = _serial(entry)
+        try:
+            faults = CalibrationFaults.from_state(entry)
+        except (ValueError, TypeError, KeyError) as exc:
+            if serial != self._calibration_serial:
+                log.warning("sim camera: ignoring calibration faults %r: %s", entry, exc)
+                self._calibration_serial = serial
+            return
+        if serial != self._calibration_serial:
+            log.info("sim camera: calibration faults now %s (fault %s)", faults, serial)
+            self._calibration_serial = serial
+        self.calibration_faults = faults
 
     def _render(self, failure: str | None) -> RenderedView | RenderedTarget:
         cell = self.cell
@@ -167,11 +197,13 @@ class SimCamera:
                 return shown
         holes = [HoleSpec(center_w=p, radius_mm=cell.spec.hole_radius_mm) for p in cell.spec.points_w]
         settings = replace(self.render, exposure=self._exposure_factor(failure))
-        T_c_w = cell.T_c_w_true()
+        faults = self.calibration_faults
+        T_c_w = faults.T_c_w(cell) if faults.active else cell.T_c_w_true()
+        lens = faults.true_camera(cell.camera) if faults.focal_pct else cell.camera
         if failure == "glare":
             centre = _first_in_image(cell, T_c_w, holes)
             settings = replace(settings, glare=Glare(center_px=centre, sigma_px=60.0, peak_grey=400.0))
-        view = render_view(cell.camera, T_c_w, holes, settings, self.rng)
+        view = render_view(lens, T_c_w, holes, settings, self.rng)
         if failure == "occluded":
             # something (a cable, a gripper finger) lies over the hole: sheet-grey disc at the hole
             r = int(3.0 * cell.spec.hole_radius_mm * cell.camera.fx / max(float(T_c_w[2, 3]), 1.0)) + 8
