@@ -104,7 +104,7 @@ def _outcome(lines: list[dict[str, Any]], fault: str | None) -> dict[str, Any]:
 def _print_table(rows: list[tuple[str, dict[str, Any], float]], args: argparse.Namespace) -> None:
     print(f"monoguide simulate --jobs 1 (the roof), seed {args.seed}, {args.cycles} cycles under each fault; "
           f"grasp error from the truth log")
-    header = (f"{'fault':<30} {'cycles ok':>10} {'refused (codes)':<36} {'grasp RMS / max, mm':>20} "
+    header = (f"{'fault':<30} {'cycles ok':>10} {'refused (codes)':<52} {'grasp RMS / max, mm':>20} "
               f"{'ok > 0.5 mm':>12} {'run s':>6}")
     print(header)
     print("-" * len(header))
@@ -113,7 +113,7 @@ def _print_table(rows: list[tuple[str, dict[str, Any], float]], args: argparse.N
         refused = f"{sum(o['refused'].values())}" + (f" ({codes})" if codes else "")
         grasp = f"{_rms(o['mm']):.3f} / {max(o['mm']):.3f}" if o["mm"] else "-"
         beyond = sum(v > REQUIREMENT_MM for v in o["mm"])
-        print(f"{name:<30} {o['ok']:>4} of {o['cycles']:<3} {refused:<36} {grasp:>20} {beyond:>12} "
+        print(f"{name:<30} {o['ok']:>4} of {o['cycles']:<3} {refused:<52} {grasp:>20} {beyond:>12} "
               f"{seconds:>6.0f}")
 
 
