@@ -69,10 +69,12 @@ class Status(IntFlag):
     RESULT_OK = 1 << 3
     ERROR = 1 << 4
     FAULT = 1 << 5
+    CALIBRATION_WARNING = 1 << 6  # the calibration's trend monitor above its warning level, or its alarm latched
 
 
 CONTROL_DEFINED = int(Control.TRIGGER | Control.RESULT_ACK | Control.FAULT_RESET)
-STATUS_DEFINED = int(Status.READY | Status.BUSY | Status.DONE | Status.RESULT_OK | Status.ERROR | Status.FAULT)
+STATUS_DEFINED = int(Status.READY | Status.BUSY | Status.DONE | Status.RESULT_OK | Status.ERROR | Status.FAULT
+                     | Status.CALIBRATION_WARNING)
 
 
 @dataclass(frozen=True)

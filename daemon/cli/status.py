@@ -101,6 +101,11 @@ def _print_report(report: dict[str, Any]) -> None:
             lines.append(f"  {name}: {'connected' if device.connected else 'NOT connected'}{trouble}")
         if service.last_result:
             lines.append("  last result: " + _last_result(service.last_result))
+        if (health := service.calibration_health) and (health.get("latched") or health.get("warning")):
+            latched = health.get("latched")
+            lines.append(f"  calibration: {latched['code']} latched since cycle {latched['cycle']}: "
+                         f"{latched['message']}" if latched else "  calibration: CALIBRATION_WARNING (the residual's "
+                         "trend is above its warning level: monoguide health)")
     if report["counter"] is not None:
         lines.append(f"journal: {report['counter']} cycles in {report['state_dir'] / JOURNAL_FILE}")
     elif report["journal_error"] is None:

@@ -8,10 +8,11 @@ from __future__ import annotations
 
 from typing import Any
 
+from monoguide.daemon.cycle._residual import Residual
 from monoguide.daemon.cycle._states import CYCLE_STATES, ERROR_CAUSES, TRANSITIONS, Cause, CycleStateMachine, State
 
-__all__ = ["CYCLE_STATES", "ERROR_CAUSES", "TRANSITIONS", "Cause", "CycleRunner", "CycleStateMachine", "State",
-           "tune_malloc"]
+__all__ = ["CYCLE_STATES", "ERROR_CAUSES", "TRANSITIONS", "Cause", "CycleRunner", "CycleStateMachine", "Residual",
+           "State", "tune_malloc"]
 _RUNNER = ("CycleRunner", "tune_malloc")
 
 

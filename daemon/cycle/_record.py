@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from monoguide.daemon.config import CellConfig, ChecksConfig
+from monoguide.daemon.cycle._residual import Residual
 from monoguide.solver import frames
 from monoguide.solver.holes import perspective_correction
 from monoguide.solver.offset import PartDisplacement
@@ -61,6 +62,7 @@ class Solution:
     T_s1_w: np.ndarray | None = None  # the solved pose, unrounded
     displacement: PartDisplacement | None = None  # of the part from the reference (the envelope is judged on it)
     images: list[Future[bool]] = field(default_factory=list)  # the measurement's
+    residual: Residual | None = None  # for the trend monitor (docs/health.md)
 
 
 class RecordBuilder:

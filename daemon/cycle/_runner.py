@@ -36,11 +36,12 @@ import numpy as np
 from monoguide.daemon.config import CellConfig, ChecksConfig
 from monoguide.daemon.cycle._images import ImageWriter, image_path, wait_images
 from monoguide.daemon.cycle._record import Capture, Measurement, RecordBuilder, Solution
+from monoguide.daemon.cycle._residual import Residual
 from monoguide.drivers.camera import Camera, CameraSettings, Frame
 from monoguide.drivers.errors import ConfigError, DeviceError
 from monoguide.drivers.robot import Robot
 from monoguide.solver import frames
-from monoguide.solver.errors import MonoguideError, ResidualTooLarge, UncertaintyTooLarge
+from monoguide.solver.errors import InconsistentMeasurement, MonoguideError, ResidualTooLarge, UncertaintyTooLarge
 from monoguide.solver.hole_edges import bit_depth_of
 from monoguide.solver.holes import measure_hole
 from monoguide.solver.offset import check_envelope
@@ -48,7 +49,9 @@ from monoguide.solver.planning import DeviationEnvelope
 from monoguide.solver.planning.prediction import pose_sigmas
 from monoguide.solver.planning.search import HoleSearch, hole_search, search_extremes
 from monoguide.solver.pose import solve_ml, solve_pose
+from monoguide.solver.problem import PoseProblem
 from monoguide.solver.record import result_to_dict
+from monoguide.solver.trend import residual_chi2, view_statistics
 
 log = logging.getLogger(__name__)
 
@@ -170,7 +173,11 @@ class CycleRunner:
         start = time.monotonic()
         first = solve_ml(measurement.parsed.problem)  # unchecked: its centres are the ellipses', not yet corrected
         record = self.records.correct(measurement, first.T_s1_w)
-        result = solve_pose(record.problem, "ml", false_alarm_rate=self.checks.false_alarm_rate)
+        try:
+            result = solve_pose(record.problem, "ml", false_alarm_rate=self.checks.false_alarm_rate)
+        except InconsistentMeasurement as exc:  # evidence for the trend monitor all the same
+            exc.residual = _residual(record.problem, solve_ml(record.problem).T_s1_w)  # type: ignore[attr-defined]
+            raise
         elapsed = time.monotonic() - start
         displacement = record.displacement(result.T_s1_w)
         assert displacement.base_offset is not None  # the record carries T_b_s1
@@ -187,6 +194,7 @@ class CycleRunner:
             T_s1_w=result.T_s1_w,
             displacement=displacement,
             images=measurement.images,
+            residual=_residual(record.problem, result.T_s1_w),
         )
 
     def check(self, measurement: Measurement, solution: Solution) -> None:
@@ -290,6 +298,11 @@ def device_errors(device: str) -> Iterator[None]:
 def _check_abort(abort: threading.Event, abort_error: Callable[[], MonoguideError]) -> None:
     if abort.is_set():
         raise abort_error()
+
+
+def _residual(problem: PoseProblem, T_s1_w: np.ndarray) -> Residual:
+    chi2, dof = residual_chi2(problem, T_s1_w)
+    return Residual(chi2, dof, tuple(view_statistics(problem, T_s1_w)))
 
 
 def _search_envelope(config: CellConfig) -> DeviationEnvelope:

@@ -18,18 +18,23 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from monoguide.daemon.config import CellConfig
-from monoguide.daemon.cycle import Cause, CycleStateMachine, State
+from monoguide.daemon.cycle import Cause, CycleStateMachine, Residual, State
 from monoguide.daemon.errors import CycleAborted, CycleError, PartNotCalibrated
 from monoguide.daemon.service._devices import CellDevices
 from monoguide.daemon.service._journal import Journal
 from monoguide.daemon.service._offsets import OffsetLedger
 from monoguide.drivers.errors import PlcTriggerDropped
 from monoguide.drivers.plc_registers import PlcInputs, check_job
-from monoguide.solver.errors import MonoguideError
+from monoguide.solver.errors import CalibrationSuspect, InconsistentMeasurement, MonoguideError
+
+if TYPE_CHECKING:
+    from monoguide.daemon.service._health import CalibrationHealth
+    from monoguide.daemon.service._plc_link import Shown
 
 log = logging.getLogger(__name__)
 
@@ -122,9 +127,11 @@ class CycleTask:
     """The stages of one cycle: measure -> solve -> check -> write, firing the transitions."""
 
     def __init__(self, machine: CycleStateMachine, journal: Journal, ledger: OffsetLedger, devices: CellDevices,
-                 runners: Runners, abort: Abort, keep_images: bool) -> None:
+                 runners: Runners, abort: Abort, keep_images: bool, health: CalibrationHealth | None = None,
+                 shown: Shown | None = None) -> None:
         self.machine, self.journal, self.ledger, self.devices = machine, journal, ledger, devices
         self.runners, self.abort, self.keep_images = runners, abort, keep_images
+        self.health, self.shown = health, shown
 
     async def run(self, inputs: PlcInputs) -> Outcome:
         """Any failure ends in ``outcome.error``; success leaves the machine in REPORTING."""
@@ -134,12 +141,19 @@ class CycleTask:
             self.journal.check_identity()  # a journal deleted or replaced: refuse before the robot moves
             job = check_job(inputs, self.runners.jobs)
             self.runners.check_calibrated(job)
+            if self.health is not None:
+                self.health.check_latch()
             images_dir = self.journal.images_dir / f"cycle-{self.journal.next_number()}" if self.keep_images else None
             runner = self.runners.for_devices(job, self.devices.handle("camera"), self.devices.handle("robot"),
                                               images_dir)
             outcome.measurement = await self._stage(runner.measure, job, self.abort.event, lambda: self.abort.error)
             machine.fire(Cause.VIEWS_MEASURED, f"{len(outcome.measurement.captures)} views")
-            outcome.solution = await self._stage(runner.solve, outcome.measurement)
+            try:
+                outcome.solution = await self._stage(runner.solve, outcome.measurement)
+            except InconsistentMeasurement as exc:  # evidence for the trend monitor too, which may say why
+                self._observe(job, getattr(exc, "residual", None), exc)
+                raise
+            self._observe(job, getattr(outcome.solution, "residual", None))  # a stand-in runner's has none
             machine.fire(Cause.POSE_SOLVED)
             await self._stage(runner.check, outcome.measurement, outcome.solution)
             machine.fire(Cause.CHECKS_PASSED)
@@ -157,6 +171,22 @@ class CycleTask:
         if outcome.error is None and machine.state is not State.REPORTING:
             outcome.error = CycleError(f"cycle ended in state {machine.state.value}, not reporting")
         return outcome
+
+    def _observe(self, job: int, residual: Residual | None, refused: MonoguideError | None = None) -> None:
+        """The solve's residual into the part type's trend monitor; its alarm refuses the cycle (CALIBRATION_SUSPECT,
+        latched), in place of the consistency test's own refusal, which does not say why."""
+        if self.health is None or residual is None:
+            return
+        try:
+            self.health.observe(job, self.journal.next_number(), datetime.now(UTC).isoformat(timespec="seconds"),
+                                residual)
+        except CalibrationSuspect as alarm:
+            if refused is not None:
+                raise alarm from refused
+            raise
+        finally:
+            if self.shown is not None:
+                self.shown.calibration_warning = self.health.warning
 
     async def _stage(self, function: Any, *args: Any) -> Any:
         value = await asyncio.to_thread(function, *args)

@@ -29,6 +29,7 @@ from monoguide.daemon.cycle import CYCLE_STATES, Cause, CycleStateMachine, State
 from monoguide.daemon.errors import CycleAborted, CycleError
 from monoguide.daemon.service._cycle_task import Abort, CycleTask, RunnerFactory, Runners
 from monoguide.daemon.service._devices import CellDevices, cell_devices
+from monoguide.daemon.service._health import CalibrationHealth
 from monoguide.daemon.service._journal import Journal
 from monoguide.daemon.service._offsets import OffsetLedger
 from monoguide.daemon.service._plc_link import POLL_S, PlcLink, Shown, status_word
@@ -97,8 +98,10 @@ class Service:
         settings = config.service or ServiceConfig()
         self.runners = Runners(config, runner_factory)
         self.abort = Abort()
+        self.health = CalibrationHealth(state_dir, config)
+        self.shown.calibration_warning = self.health.warning
         self.task = CycleTask(self.machine, self.journal, self.ledger, devices, self.runners, self.abort,
-                              settings.keep_images)
+                              settings.keep_images, self.health, self.shown)
         self.report = CycleReport(self.machine, self.journal, self.ledger, devices, self.link, self.shown, settings)
         self.cycle_task: asyncio.Task[None] | None = None
         self.settle_task: asyncio.Task[None] | None = None
@@ -294,7 +297,9 @@ class Service:
             self.notifier.status(self._status_line())
         if self.link.connected:
             fault = self.machine.fault if self.machine.state is State.FAULT else None
-            word = status_word(self.machine.state, self.shown.outcome_ok, self.shown.acknowledged)
+            self.shown.calibration_warning = self.health.warning  # also once the monitors are restored at start
+            word = status_word(self.machine.state, self.shown.outcome_ok, self.shown.acknowledged,
+                               self.shown.calibration_warning)
             try:
                 await self.link.show(word, self._shown_result(), fault)
             except DeviceError as exc:
@@ -357,7 +362,8 @@ class Service:
             write_status(self.state_dir, ServiceStatus(
                 self.machine.state.value, self.since, os.getpid(), time.time(), STATUS_FILE_PERIOD_S, devices,
                 self.shown.last_result, None if fault is None else {"code": fault.code, "plc_code": fault.plc_code,
-                                                                    "message": fault.message}, self.link.registers()))
+                                                                    "message": fault.message}, self.link.registers(),
+                self.health.summary()))
         except OSError as exc:
             log.warning("status file: cannot write in %s: %s", self.state_dir, exc)
 

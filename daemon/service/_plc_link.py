@@ -35,13 +35,22 @@ ZERO_OFFSET = (0.0,) * 6
 ZERO_QUALITY = (0.0,) * 3
 
 
-def status_word(state: State, outcome_ok: bool | None, acknowledged: bool) -> Status:
-    """The status word (register 10) shown in ``state``.
+def status_word(state: State, outcome_ok: bool | None, acknowledged: bool,
+                calibration_warning: bool = False) -> Status:
+    """The status word (register 10) shown in ``state``, with CALIBRATION_WARNING while ``calibration_warning``
+    (in every state but STARTING and STOPPED).
 
     ``outcome_ok``: in AWAITING_ACK, whether the cycle's offset was written (RESULT_OK) or not (ERROR);
     ``acknowledged``: RESULT_ACK was seen, DONE/RESULT_OK/ERROR are cleared while TRIGGER and RESULT_ACK
     fall (READY follows once both are low).
     """
+    word = _state_word(state, outcome_ok, acknowledged)
+    if calibration_warning and state not in (State.STARTING, State.STOPPED):
+        word |= Status.CALIBRATION_WARNING
+    return word
+
+
+def _state_word(state: State, outcome_ok: bool | None, acknowledged: bool) -> Status:
     if state is State.IDLE:
         return Status.READY
     if state in CYCLE_STATES or state is State.REPORTING:
@@ -70,6 +79,7 @@ class Shown:
     last_result: dict[str, Any] | None = None
     outcome_ok: bool | None = None  # DONE with RESULT_OK (True) or ERROR (False)
     acknowledged: bool = False  # RESULT_ACK seen: DONE and its bits are cleared
+    calibration_warning: bool = False  # the status word's CALIBRATION_WARNING (CalibrationHealth.warning)
     done_at: float = 0.0  # time.monotonic() of DONE
     finished: int = 0  # cycles journaled by this run
 

@@ -70,7 +70,8 @@ class CycleReport:
         self.shown.outcome_ok, self.shown.done_at = error is None, time.monotonic()
         machine.fire(Cause.REPORTED, f"cycle {number}: {'RESULT_OK' if error is None else error.code}")
         try:  # DONE, in its own write after the result registers
-            await self.link.show(status_word(machine.state, self.shown.outcome_ok, self.shown.acknowledged),
+            await self.link.show(status_word(machine.state, self.shown.outcome_ok, self.shown.acknowledged,
+                                             self.shown.calibration_warning),
                                  self.shown.result, None)
         except DeviceError as exc:
             await self.link.lost(exc)  # the PLC is told nothing; on reconnecting it sees 0 first

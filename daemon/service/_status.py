@@ -49,6 +49,7 @@ class ServiceStatus:
     last_result: dict[str, Any] | None = None  # {"cycle", "status", "error_code", "finished_at", ...}
     fault: dict[str, Any] | None = None  # while latched: {"code", "plc_code", "message"} of what latched FAULT
     plc: dict[str, Any] | None = None  # the PLC registers as last read and written (PlcLink.registers); None: none
+    calibration_health: dict[str, Any] | None = None  # CalibrationHealth.summary(): the trend monitors, the latch
 
     def as_dict(self) -> dict[str, Any]:
         return {"format": FORMAT, **asdict(self)}
@@ -135,12 +136,12 @@ def _parse(path: Path, data: Any) -> ServiceStatus:
     last_result = data.get("last_result")
     if last_result is not None and not isinstance(last_result, dict):
         raise bad(f"last_result: expected an object or null, got {last_result!r}")
-    fault, plc = data.get("fault"), data.get("plc")
-    for key, value in (("fault", fault), ("plc", plc)):
+    fault, plc, health = data.get("fault"), data.get("plc"), data.get("calibration_health")
+    for key, value in (("fault", fault), ("plc", plc), ("calibration_health", health)):
         if value is not None and not isinstance(value, dict):
             raise bad(f"{key}: expected an object or null, got {value!r}")
     return ServiceStatus(data["state"], times["since"], pid, times["updated_at"], times["heartbeat_s"], parsed,
-                         last_result, fault, plc)
+                         last_result, fault, plc, health)
 
 
 def _pid_alive(pid: int) -> bool:

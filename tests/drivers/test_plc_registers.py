@@ -146,11 +146,12 @@ def test_job_numbers() -> None:
 
 def test_status_bits_are_those_of_the_contract() -> None:
     assert [int(s) for s in (Status.READY, Status.BUSY, Status.DONE, Status.RESULT_OK, Status.ERROR,
-                             Status.FAULT)] == [1, 2, 4, 8, 16, 32]
+                             Status.FAULT, Status.CALIBRATION_WARNING)] == [1, 2, 4, 8, 16, 32, 64]
     assert [int(c) for c in (Control.TRIGGER, Control.RESULT_ACK, Control.FAULT_RESET)] == [1, 2, 4]
     assert encode_status(Status.DONE | Status.RESULT_OK) == 12
+    assert encode_status(Status.READY | Status.CALIBRATION_WARNING) == 65
     with pytest.raises(DeviceRequestInvalid, match="register 10"):
-        encode_status(64)
+        encode_status(128)
 
 
 def test_result_block_layout_against_struct() -> None:
@@ -181,7 +182,7 @@ def test_result_refuses_bad_values() -> None:
     with pytest.raises(DeviceRequestInvalid, match="6 offset"):
         encode_result(CycleResult(0, 0, 1, 0, (0, 0, 0)), 0)  # type: ignore[arg-type]
     with pytest.raises(PlcValueInvalid, match="register 10"):
-        decode_outputs([0x0040] + [0] * (BLOCK_SIZE - STATUS - 1))
+        decode_outputs([0x0080] + [0] * (BLOCK_SIZE - STATUS - 1))
 
 
 def test_register_names() -> None:
