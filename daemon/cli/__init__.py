@@ -31,6 +31,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "journal": ("monoguide.daemon.cli.journal", "app", "Past cycles from the journal: list, show, resolve, export."),
     "plant": ("monoguide.daemon.cli.plant", "plant", "The cell to the plant: OPC UA (Machine Vision) and Prometheus."),
     "web": ("monoguide.daemon.cli.web", "web", "The operator page: the cell in a browser, read-only."),
+    "health": ("monoguide.daemon.cli.health", "health", "How well the calibration still fits: trend, residuals."),
 }
 
 

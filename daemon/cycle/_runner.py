@@ -184,8 +184,10 @@ class CycleRunner:
         D_b = displacement.base_offset
         sigmas = pose_sigmas(result.covariance, result.T_s1_w, record.grasp_point_w)
         measurement.timings_s["solve"] = elapsed
+        residual = _residual(record.problem, result.T_s1_w)
         return Solution(
-            result=result_to_dict(record, result, elapsed * 1e3),
+            result={**result_to_dict(record, result, elapsed * 1e3), "calibration_residual": {
+                "chi2": residual.chi2, "dof": residual.dof, "per_view": [list(v) for v in residual.per_view]}},
             D_b=D_b,
             offset=frames.T_to_kuka_frame(D_b),
             quality=(result.rms_px, sigmas.sigma_trans_mm, sigmas.sigma_rot_deg),
@@ -194,7 +196,7 @@ class CycleRunner:
             T_s1_w=result.T_s1_w,
             displacement=displacement,
             images=measurement.images,
-            residual=_residual(record.problem, result.T_s1_w),
+            residual=residual,
         )
 
     def check(self, measurement: Measurement, solution: Solution) -> None:
