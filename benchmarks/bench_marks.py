@@ -140,8 +140,8 @@ def _false_alarms(cells: dict[int, MarkedCell], cycles: int, seed: int) -> None:
         print(f"{marks:<16} {suspect:>20} {1e4 * suspect / cycles:>11.2f} {inconsistent:>25} "
               f"{1e4 * inconsistent / cycles:>11.2f} {design:>24.2g}")
     _tolerance_table(cells, seed)
-    print("the tolerance's design rate is 1e-4 per cycle (Bonferroni over views and marks); the whole fit's chi-square "
-          "is tested at 1e-3, as today's consistency check")
+    print("the tolerance's design rate is 1e-4 per cycle (Bonferroni over the views, the views together and the "
+          "marks); the whole fit's chi-square is tested at 1e-3, as today's consistency check")
 
 
 def _tolerance_table(cells: dict[int, MarkedCell], seed: int) -> None:

@@ -28,7 +28,7 @@ from monoguide.solver.errors import CalibrationSuspect, InconsistentMeasurement,
 from monoguide.solver.marks import MEASURED_SHARE, MarksProblem, MarksResult, fit_marks
 from monoguide.solver.pose import PoseResult
 
-DEFAULT_MARKS_FALSE_ALARM_RATE = 1e-4  # per cycle: the marks' tolerance over every checked view and mark
+DEFAULT_MARKS_FALSE_ALARM_RATE = 1e-4  # per cycle: the marks' tolerance (every view, the views together, every mark)
 
 
 @dataclass(frozen=True)
