@@ -28,7 +28,8 @@ from monoguide.daemon.cli.journal import open_journal
 from monoguide.daemon.config import load_cell_config
 from monoguide.daemon.errors import NoJournal
 from monoguide.daemon.service import STATE_DIR_HELP, existing_state_dir
-from monoguide.daemon.service._health import HEALTH_FILE
+from monoguide.daemon.service._health import HEALTH_FILE, request_clear
+from monoguide.drivers.errors import ConfigError
 from monoguide.solver.errors import MonoguideError
 from monoguide.solver.trend import TrendMonitor
 
@@ -40,10 +41,21 @@ def health(
     last: Annotated[int, typer.Option("--last", min=2, help="the recent cycles the means and trends are of")] = 200,
     out: Annotated[Path | None, typer.Option("--out", help="draw the recent residuals into this PNG")] = None,
     json_out: Annotated[bool, typer.Option("--json", help="one JSON object on standard output")] = False,
+    clear: Annotated[str | None, typer.Option("--clear", help="REASON: after inspecting the cell, clear a latched "
+                                              "CALIBRATION_SUSPECT and restart the trend monitors (logged)")] = None,
 ) -> None:
     """The calibration's health: the trend monitors, their levels, the residual per view and its trend."""
     try:
         directory = existing_state_dir(state_dir)
+        if clear is not None:
+            try:
+                path = request_clear(directory, clear)
+            except (ValueError, OSError) as exc:
+                raise ConfigError(f"--clear: {exc}") from exc
+            stdout_console().print(f"clear requested ({path}): the service clears the latch and restarts its trend "
+                                   "monitors between cycles (or at its next start); its log and the health file keep "
+                                   "the reason", markup=False)
+            raise typer.Exit(EXIT_OK)
         report = gather(directory, last, config)
     except MonoguideError as exc:
         fail(exc, status=EXIT_USAGE)
@@ -78,7 +90,7 @@ def gather(directory: Path, last: int, config: Path | None = None) -> dict[str, 
         per_view = [x / k if k else 0.0 for x, k in residual.get("per_view") or []]
         entry["views"].append(per_view)
     out: dict[str, Any] = {"state_dir": str(directory), "calibration": kept.get("calibration"),
-                           "latched": kept.get("latched"), "monitors": {}, "jobs": {}}
+                           "latched": kept.get("latched"), "cleared": kept.get("cleared"), "monitors": {}, "jobs": {}}
     for job, state in (kept.get("monitors") or {}).items():
         try:
             r = TrendMonitor.from_state(state).reading()

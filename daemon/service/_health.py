@@ -20,6 +20,7 @@ import hashlib
 import json
 import logging
 import threading
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +36,18 @@ log = logging.getLogger(__name__)
 
 HEALTH_FILE = "calibration-health.json"
 HEALTH_FORMAT = "monoguide.calibration-health/1"
+CLEAR_REQUEST = "calibration-health.clear"  # `monoguide health --clear REASON` leaves it; the service takes it
+
+
+def request_clear(state_dir: Path, reason: str) -> Path:
+    """Ask the service of ``state_dir`` (running, or at its next start) to clear the latch and start its trend
+    monitors afresh, for ``reason`` (logged, and kept in the health file as the last clear)."""
+    if not reason.strip():
+        raise ValueError("a reason is needed to clear the calibration latch (what was inspected or done)")
+    path = Path(state_dir) / CLEAR_REQUEST
+    write_atomic(path, json.dumps({"reason": reason.strip(), "at": datetime.now(UTC).isoformat(timespec="seconds")})
+                 + "\n", durable=True)
+    return path
 
 
 def calibration_identity(config: CellConfig) -> str:
@@ -59,10 +72,12 @@ class CalibrationHealth:
         self.monitors: dict[int, TrendMonitor] = {}
         self.latched: dict[str, Any] | None = None
         self.last: dict[int, TrendReading] = {}
+        self.cleared: str | None = None  # the last operator's clear (its reason)
         self._load_latch()
         # the monitors' levels take a second or two to compute: beside the start, not in READY's way nor in a cycle
         self._ready = threading.Thread(target=self._load_monitors, args=(config,), name="trend-levels", daemon=True)
         self._ready.start()
+        self.take_clear_request()  # one left while no service ran
 
     @property
     def warning(self) -> bool:
@@ -108,14 +123,29 @@ class CalibrationHealth:
         return reading
 
     def clear(self, why: str) -> None:
-        """A passing check: the latch and the monitors start afresh (saved)."""
+        """The latch and the monitors start afresh (saved): an operator's clear after inspecting the cell."""
         self.wait_ready()
-        if self.latched is not None:
-            log.warning("calibration latch cleared: %s", why)
-        self.latched, self.last = None, {}
+        log.warning("calibration latch %s and trend monitors reset: %s",
+                    "cleared" if self.latched is not None else "(none)", why)
+        self.latched, self.last, self.cleared = None, {}, why
         for monitor in self.monitors.values():
             monitor.reset()
         self._save()
+
+    def take_clear_request(self) -> bool:
+        """A clear asked for by ``monoguide health --clear`` (:func:`request_clear`): done, and its file removed."""
+        path = self.path.with_name(CLEAR_REQUEST)
+        try:
+            request = json.loads(path.read_text())
+        except FileNotFoundError:
+            return False
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            request = {"reason": f"(unreadable request: {exc})"}
+        request = request if isinstance(request, dict) else {}
+        self.clear(f"{request.get('reason') or 'no reason given'} (asked at {request.get('at', '?')} by monoguide "
+                   "health --clear)")
+        path.unlink(missing_ok=True)
+        return True
 
     def summary(self) -> dict[str, Any]:
         """For the status file: the calibration's identity, the latch, each part type's last reading."""
@@ -167,7 +197,7 @@ class CalibrationHealth:
         self.last = {job: m.reading() for job, m in monitors.items() if m.reading().cycles}
 
     def _save(self) -> None:
-        data = {"format": HEALTH_FORMAT, "calibration": self.identity, "latched": self.latched,
+        data = {"format": HEALTH_FORMAT, "calibration": self.identity, "latched": self.latched, "cleared": self.cleared,
                 "monitors": {str(job): monitor.state for job, monitor in sorted(self.monitors.items())}}
         try:
             write_atomic(self.path, json.dumps(data, indent=1) + "\n")

@@ -297,6 +297,8 @@ class Service:
             self.notifier.status(self._status_line())
         if self.link.connected:
             fault = self.machine.fault if self.machine.state is State.FAULT else None
+            if self.cycle_task is None:
+                self.health.take_clear_request()  # `monoguide health --clear`: between cycles
             self.shown.calibration_warning = self.health.warning  # also once the monitors are restored at start
             word = status_word(self.machine.state, self.shown.outcome_ok, self.shown.acknowledged,
                                self.shown.calibration_warning)

@@ -132,8 +132,8 @@ class FaultInjector:
     clears them (see the module's doc); :attr:`injected` says which fault went with which part."""
 
     def __init__(self, send: Callable[[str], None], total: int, plan: tuple[Fault, ...], heartbeat_timeout_s: float,
-                 note: Callable[[str], None]) -> None:
-        self._send, self._note = send, note
+                 note: Callable[[str], None], clear_latch: Callable[[str], None] | None = None) -> None:
+        self._send, self._note, self._clear_latch = send, note, clear_latch
         self._schedule = _schedule(total, plan)
         self._heartbeat_timeout_s = heartbeat_timeout_s
         # (command, at monotonic time; None: after its parts, how many are left)
@@ -170,9 +170,15 @@ class FaultInjector:
                 self._clear_now()
 
     def _clear_now(self) -> None:
+        """Clear the fault; a calibration fault's also the service's latch (the operator who put the camera back
+        clears it, ``monoguide health --clear``), so that the next fault is judged on its own."""
         assert self._clear is not None
-        self._send(self._clear[0])
+        command = self._clear[0]
+        self._send(command)
         self._clear = None
+        device, name = command.split(" ", 1)
+        if self._clear_latch is not None and is_calibration_fault(device, name):
+            self._clear_latch(f"simulate: the calibration fault was cleared ({command})")
 
 
 def _schedule(total: int, plan: tuple[Fault, ...]) -> dict[int, tuple[Fault, int]]:

@@ -28,6 +28,7 @@ from typing import Any
 
 from monoguide.daemon.errors import SimulateChildEnded, SimulateTimeout
 from monoguide.daemon.service import JournalRow
+from monoguide.daemon.service._health import request_clear
 from monoguide.daemon.simulate._children import STOP_TIMEOUT_S, Child, Children, LineReader
 from monoguide.daemon.simulate._config import DerivedCell, derive_config
 from monoguide.daemon.simulate._fault_plan import Fault, FaultInjector, InjectedFault, faults_to_inject
@@ -166,7 +167,7 @@ def _play(options: RunOptions, cell: DerivedCell, sim: Child, service: Child, pr
     records: list[dict[str, Any]] = []
     samples: list[dict[str, float]] = []
     injector = FaultInjector(sim.send, total, plan, float(cell.data["plc"].get("heartbeat_timeout_s", 2.0)),
-                             progress.note)
+                             progress.note, lambda why: request_clear(cell.state_dir, why))
     part_timeout = FAULT_PART_TIMEOUT_S if options.faults else PART_TIMEOUT_S
     deadline = time.monotonic() + SERVICE_START_TIMEOUT_S + part_timeout
     service_gone_at: float | None = None

@@ -29,7 +29,7 @@ from helpers.sim_processes import keep_reading, start_sim_cell, stop
 from monoguide.daemon.config import load_cell_config
 from monoguide.daemon.cycle import Residual
 from monoguide.daemon.service import Journal
-from monoguide.daemon.service._health import HEALTH_FILE, CalibrationHealth
+from monoguide.daemon.service._health import HEALTH_FILE, CalibrationHealth, request_clear
 from monoguide.daemon.simulate import dumps_toml
 from monoguide.drivers.plc_registers import Control, Status
 from monoguide.solver.errors import CalibrationSuspect
@@ -179,3 +179,25 @@ async def test_a_bumped_camera_is_refused_with_calibration_suspect_latched_until
     (status_word, result, ready), = again
     assert status_word == Status.DONE | Status.RESULT_OK and result.error_code == 0
     assert Status.CALIBRATION_WARNING not in ready
+
+
+def test_an_operators_clear_resets_the_latch_with_its_reason(tmp_path: Path) -> None:
+    config = load_cell_config(SIM_CELL)
+    health = CalibrationHealth(tmp_path, config)
+    with pytest.raises(CalibrationSuspect):
+        for k in range(1, 50):
+            health.observe(1, k, "2026-12-01T10:00:00+00:00", Residual(40.0, 2))
+    with pytest.raises(ValueError, match="a reason is needed"):
+        request_clear(tmp_path, "  ")
+    request_clear(tmp_path, "camera bracket re-tightened, calibrate verify passed")
+    assert health.take_clear_request() and not health.take_clear_request()  # taken once, its file gone
+    health.check_latch()
+    assert health.latched is None and health.monitors[1].reading().cycles == 0
+    saved = json.loads((tmp_path / HEALTH_FILE).read_text())
+    assert saved["latched"] is None and saved["cleared"].startswith("camera bracket re-tightened")
+    # a request left while no service ran is taken at the next start
+    with pytest.raises(CalibrationSuspect):
+        for k in range(1, 50):
+            health.observe(1, k, "2026-12-01T11:00:00+00:00", Residual(40.0, 2))
+    request_clear(tmp_path, "inspected")
+    assert CalibrationHealth(tmp_path, config).latched is None
