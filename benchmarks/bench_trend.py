@@ -50,7 +50,16 @@ from monoguide.solver.consistency import DEFAULT_FALSE_ALARM_RATE, chi2_threshol
 from monoguide.solver.errors import MonoguideError
 from monoguide.solver.pose import solve_ml
 from monoguide.solver.synthetic import deviated_part, paper_roof_cell
-from monoguide.solver.trend import ALARM_ARL0, WARNING_ARL0, TrendMonitor, average_run_length, residual_chi2
+from monoguide.solver.trend import (
+    ALARM_ARL0,
+    SERVICE_ALARM_ARL0,
+    WARNING_ARL0,
+    TrendMonitor,
+    average_run_length,
+    residual_chi2,
+)
+
+ALARM_USED: float = ALARM_ARL0
 
 CELL = paper_roof_cell()
 GRASP_W = CELL.points_w.mean(axis=0)  # the roof has no grasp point of its own: the holes' centroid
@@ -76,15 +85,19 @@ def main() -> None:
     parser.add_argument("--max-cycles", type=int, default=1000, help="cycles per run before giving up (1000)")
     parser.add_argument("--seed", type=int, default=2020, help="seed (2020)")
     parser.add_argument("--jobs", type=int, default=2, help="worker processes (2)")
+    parser.add_argument("--alarm-arl0", type=float, default=ALARM_ARL0,
+                        help=f"the alarm level's nominal ARL0 ({ALARM_ARL0:,}; the service's: {SERVICE_ALARM_ARL0:,})")
     args = parser.parse_args()
+    global ALARM_USED
+    ALARM_USED = args.alarm_arl0  # the forked workers inherit it
     print("$ .venv/bin/python benchmarks/bench_trend.py " + " ".join(sys.argv[1:]))
-    monitor = TrendMonitor(DOF)
+    monitor = TrendMonitor(DOF, alarm_arl0=ALARM_USED)
     levels = monitor.levels
     print(f"solver-level Monte Carlo, the paper's roof cell (4 views, 1 hole each, dof {DOF}), parts +-5 deg / "
           f"+-50 mm, {SIGMA_PX} px, repeatability {REP_MM} mm / {REP_DEG} deg per view; seed {args.seed}")
     print(f"monitor: CUSUM of chi2 scaled by {levels.scale:g}; warning level {levels.warning:.3f} (ARL0 "
-          f"{WARNING_ARL0:,}), alarm level {levels.alarm:.3f} (ARL0 {ALARM_ARL0:,}); per-cycle check: chi2 > "
-          f"{REFUSED:.2f} (false-alarm rate {DEFAULT_FALSE_ALARM_RATE:g})")
+          f"{WARNING_ARL0:,}), alarm level {levels.alarm:.3f} (nominal ARL0 {ALARM_USED:,.0f}); per-cycle check: "
+          f"chi2 > {REFUSED:.2f} (false-alarm rate {DEFAULT_FALSE_ALARM_RATE:g})")
     print()
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         _false_alarms(pool, args)
@@ -117,7 +130,7 @@ def _false_alarms(pool: ProcessPoolExecutor, args: argparse.Namespace) -> None:
     chunks = [(args.seed, k, n) for k, n in enumerate(_split(args.cycles, 20))]
     results = list(pool.map(_good_chunk, chunks))
     chi2 = np.concatenate(results)
-    monitor = TrendMonitor(DOF)
+    monitor = TrendMonitor(DOF, alarm_arl0=ALARM_USED)
     alarms = warnings = 0
     in_episode = False  # a warning episode: from the rise above the level until the statistic is back at 0
     for x in chi2:
@@ -135,7 +148,7 @@ def _false_alarms(pool: ProcessPoolExecutor, args: argparse.Namespace) -> None:
     print(f"(a) {n:,} good cycles (solver-level Monte Carlo): mean chi2 {chi2.mean():.3f} (dof {DOF}), refused by "
           f"the per-cycle check {np.sum(chi2 > REFUSED)} ({1e4 * np.mean(chi2 > REFUSED):.1f} per 10,000)")
     print(f"{'':4}{'level':<10} {'target per 10,000':>18} {'counted':>8} {'per 10,000':>11} {'95 % upper':>11}")
-    for name, count, target in (("warning", warnings, WARNING_ARL0), ("alarm", alarms, ALARM_ARL0)):
+    for name, count, target in (("warning", warnings, WARNING_ARL0), ("alarm", alarms, ALARM_ARL0)):  # the targets
         print(f"{'':4}{name:<10} {f'<= {1e4 / target:g}':>18} {count:>8} {1e4 * count / n:>11.2f} "
               f"{1e4 * _poisson_upper(count) / n:>11.2f}")
 
@@ -178,8 +191,8 @@ def _faults(pool: ProcessPoolExecutor, args: argparse.Namespace) -> None:
                         for run_cycles, d in mine)
         alarmed = sum(d is not None for d in delays)
         ranked = sorted(cap + 1 if d is None else d for d in delays)
-        markov = average_run_length(TrendMonitor(DOF).levels.alarm, DOF, noncentrality=delta)
-        bound = 2.0 * math.log(ALARM_ARL0) / delta if delta > 0 else math.inf
+        markov = average_run_length(TrendMonitor(DOF, alarm_arl0=ALARM_USED).levels.alarm, DOF, noncentrality=delta)
+        bound = 2.0 * math.log(ALARM_USED) / delta if delta > 0 else math.inf
         note = _note(grasp, refused, alarmed, len(delays), delta)
         print(f"{fault.name:<34} {grasp:>12.3f} {refused:>8.1%} {delta:>6.2f} {alarmed:>3}/{len(delays):<4} "
               f"{_cycles(_quantile(ranked, 0.5), cap):>12} {_cycles(_quantile(ranked, 0.9), cap):>6} "
@@ -192,7 +205,7 @@ def _fault_run(job: tuple[int, int, int, int]) -> tuple[list[Cycle], int | None]
     seed, i, run, cap = job
     fault = fault_list()[i]
     rng = np.random.default_rng([seed, 1, run])  # the same parts and noise for every fault
-    monitor = TrendMonitor(DOF)
+    monitor = TrendMonitor(DOF, alarm_arl0=ALARM_USED)
     cycles = []
     for _ in range(cap):
         try:

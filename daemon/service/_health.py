@@ -30,7 +30,7 @@ from monoguide.daemon.config import CellConfig
 from monoguide.daemon.cycle import Residual
 from monoguide.drivers.atomic_file import write_atomic
 from monoguide.solver.errors import CalibrationSuspect
-from monoguide.solver.trend import TrendMonitor, TrendReading
+from monoguide.solver.trend import SERVICE_ALARM_ARL0, TrendMonitor, TrendReading
 
 log = logging.getLogger(__name__)
 
@@ -101,9 +101,13 @@ class CalibrationHealth:
         self.wait_ready()
         monitor = self.monitors.get(job)
         if monitor is None or monitor.levels.dof != residual.dof:
-            monitor = self.monitors[job] = TrendMonitor(residual.dof)
+            monitor = self.monitors[job] = TrendMonitor(residual.dof, alarm_arl0=SERVICE_ALARM_ARL0)
         was_alarm = monitor.reading().alarm
-        reading = monitor.update(residual.chi2, residual.dof, residual.per_view or None)
+        try:
+            reading = monitor.update(residual.chi2, residual.dof, residual.per_view or None)
+        except ValueError as exc:  # a solve gone wrong (a non-finite residual), or a view's rank changed: left out
+            log.error("job %d: cycle %d's residual left out of the trend monitor: %s", job, cycle, exc)
+            return monitor.reading()
         self.last[job] = reading
         error = None
         if reading.alarm and not was_alarm:
@@ -192,7 +196,7 @@ class CalibrationHealth:
         for job in config.jobs:
             dof = 2 * sum(len(pose.points) for pose in config.for_job(job).measuring_poses) - 6
             if dof > 0 and (job not in monitors or monitors[job].levels.dof != dof):
-                monitors[job] = TrendMonitor(dof)
+                monitors[job] = TrendMonitor(dof, alarm_arl0=SERVICE_ALARM_ARL0)
         self.monitors = monitors
         self.last = {job: m.reading() for job, m in monitors.items() if m.reading().cycles}
 
