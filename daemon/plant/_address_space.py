@@ -12,7 +12,7 @@ Objects/VisionSystem                        VisionSystemType
     Results/Result01 .. Result<N>           ResultType objects, Result01 the newest: the fields of _result_fields
   Service                                   State, Running, Since, Fault, CycleCounter, JournalBytes
   Devices/<name>                            Connected, LastErrorCode, LastErrorMessage (as status.json names them)
-  CalibrationHealth                         CalibrationDate, CalibrationAge, HealthLevel (BadNotSupported)
+  CalibrationHealth                         CalibrationDate, CalibrationAge, HealthLevel (0 ok, 1 warning, 2 alarm)
 ```
 
 Every variable is read-only (asyncua's default AccessLevel CurrentRead); the object has no methods. The
@@ -123,7 +123,7 @@ async def build_address_space(server: Server, cell: CellDescription) -> VisionSy
         ("CalibrationDate", ua.VariantType.DateTime), ("CalibrationAge", ua.VariantType.Double),
         ("HealthLevel", ua.VariantType.Double))}
     await _write(server, calibration["CalibrationDate"], _date_value(cell.calibration_date))
-    await _write(server, calibration["HealthLevel"], bad(ua.StatusCodes.BadNotSupported))
+    await _write(server, calibration["HealthLevel"], bad(ua.StatusCodes.BadNoDataAvailable))
 
     event_type = await server.create_custom_event_type(
         idx, "ResultReadyEventType", ua.ObjectIds.BaseEventType, [(f.name, f.variant) for f in RESULT_FIELDS])

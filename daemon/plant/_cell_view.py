@@ -38,6 +38,20 @@ class CellReading:
     journal_bytes: int = 0  # journal.sqlite3 and its -wal
 
 
+HEALTH_OK, HEALTH_WARNING, HEALTH_ALARM = 0.0, 1.0, 2.0  # the calibration health level the plant publishes
+
+
+def health_level(reading: CellReading) -> float | None:
+    """The calibration's health as the running service keeps it (docs/health.md): 0 ok, 1 the trend above its
+    warning level, 2 its alarm latched (CALIBRATION_SUSPECT); None when no running service says."""
+    health = reading.status.calibration_health if reading.status is not None and reading.running else None
+    if not isinstance(health, dict):
+        return None
+    if health.get("latched"):
+        return HEALTH_ALARM
+    return HEALTH_WARNING if health.get("warning") else HEALTH_OK
+
+
 class CellView:
     """Reads the state directory of one service; opens the journal once it exists, again when it was replaced."""
 

@@ -14,7 +14,7 @@ from typing import Any
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, ProcessCollector, start_http_server
 
 from monoguide.daemon.errors import PlantListenFailed
-from monoguide.daemon.plant._cell_view import CellReading
+from monoguide.daemon.plant._cell_view import CellReading, health_level
 from monoguide.daemon.plant._results import OFFSET_AXES, CycleResult
 from monoguide.daemon.service import STATUS_FILE
 
@@ -59,7 +59,8 @@ class PlantMetrics:
         self.calibration_age = Gauge("monoguide_calibration_age_seconds",
                                      "Since [calibration] date of the cell config (NaN: no date).", registry=r)
         self.health = Gauge("monoguide_calibration_health_level",
-                            "The calibration health level (NaN: not measured by this release).", registry=r)
+                            "The calibration's health: 0 ok, 1 warning, 2 alarm latched (NaN: no service running).",
+                            registry=r)
         self.calibration_date = calibration_date
         for axis in OFFSET_AXES:
             self.offset.labels(axis=axis).set(math.nan)
@@ -109,6 +110,8 @@ class PlantMetrics:
             self.journal_cycles.set(reading.counter)
         date = self.calibration_date
         self.calibration_age.set(math.nan if date is None else time.time() - date)
+        level = health_level(reading)
+        self.health.set(math.nan if level is None else level)
 
     def _gauges(self, result: CycleResult) -> None:
         self.last_cycle.set(result.cycle)

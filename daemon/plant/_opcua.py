@@ -23,7 +23,7 @@ from monoguide.daemon.plant._address_space import (
     build_address_space,
     device_nodes,
 )
-from monoguide.daemon.plant._cell_view import CellReading
+from monoguide.daemon.plant._cell_view import CellReading, health_level
 from monoguide.daemon.plant._pki import ServerIdentity, server_identity
 from monoguide.daemon.plant._result_fields import RESULT_FIELDS, data_value, timestamp, variant
 from monoguide.daemon.plant._results import CycleResult
@@ -118,6 +118,9 @@ class PlantOpcUa:
                             ua.DataValue(ua.Variant(float(round(time.time() - date)), ua.VariantType.Double)))
         else:
             await self._set(nodes.calibration["CalibrationAge"], bad(ua.StatusCodes.BadNoDataAvailable))
+        level = health_level(reading)
+        await self._set(nodes.calibration["HealthLevel"], bad(ua.StatusCodes.BadNoDataAvailable) if level is None
+                        else ua.DataValue(ua.Variant(level, ua.VariantType.Double)))
 
     async def seed(self, newest_first: list[CycleResult]) -> None:
         """The results the journal held at start (newest first), shown without events."""

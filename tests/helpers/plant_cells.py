@@ -29,6 +29,7 @@ class PlantCell:
     stranger: ClientIdentity  # not in the trust list
     seeded: list[CycleEntry]
     log: Path
+    beat: StatusBeat | None = None  # the status file's writer: what the "service" says (state, calibration health)
 
 
 def seeded_entries(count: int, start: float) -> list[CycleEntry]:
@@ -61,6 +62,7 @@ class StatusBeat:
 
     def __init__(self, state_dir: Path, state: str = "idle") -> None:
         self.state_dir, self.state = state_dir, state
+        self.health: dict | None = None  # the status file's calibration_health (CalibrationHealth.summary())
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._beat, daemon=True)
         running_status(state_dir, state)
@@ -72,16 +74,17 @@ class StatusBeat:
 
     def _beat(self) -> None:
         while not self._stop.wait(0.5):
-            running_status(self.state_dir, self.state)
+            running_status(self.state_dir, self.state, self.health)
 
 
-def running_status(state_dir: Path, state: str = "idle") -> None:
+def running_status(state_dir: Path, state: str = "idle", health: dict | None = None) -> None:
     """A status file of a running service (this test's pid, fresh for 3 s)."""
     now = time.time()
     write_status(state_dir, ServiceStatus(state, now - 5.0, os.getpid(), now, 1.0,
                                           {"plc": DeviceStatus(True), "camera": DeviceStatus(True),
                                            "robot": DeviceStatus(False, {"code": "DEVICE_DISCONNECTED",
-                                                                         "message": "robot gone"})}))
+                                                                         "message": "robot gone"})},
+                                          calibration_health=health))
 
 
 def plant_file(path: Path, host: str, port: int, extra: str = "") -> Path:

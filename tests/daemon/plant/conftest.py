@@ -27,7 +27,7 @@ def plant_cell(tmp_path_factory: pytest.TempPathFactory, request: pytest.Fixture
     process, line = start_plant(SIM_CELL, state_dir, plant_file(tmp / "plant.toml", host, port), log)
     words = line.split()
     try:
-        yield PlantCell(state_dir, words[2], words[4], line, client, stranger, seeded, log)
+        yield PlantCell(state_dir, words[2], words[4], line, client, stranger, seeded, log, beat)
     finally:
         stop(process)
         beat.stop()

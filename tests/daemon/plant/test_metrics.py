@@ -69,6 +69,30 @@ def test_the_counters_match_the_journal(plant_cell: PlantCell) -> None:
     assert after["monoguide_journal_bytes"][()] >= (plant_cell.state_dir / "journal.sqlite3").stat().st_size
 
 
+def _level_becomes(plant_cell: PlantCell, wanted: float) -> float:
+    deadline = time.monotonic() + 10.0
+    while True:
+        level = _scrape(plant_cell.metrics_url)["monoguide_calibration_health_level"][()]
+        if level == wanted or time.monotonic() > deadline:
+            return level
+        time.sleep(0.1)
+
+
+def test_the_calibration_health_level_follows_the_service(plant_cell: PlantCell) -> None:
+    assert plant_cell.beat is not None
+    latched = {"code": "CALIBRATION_SUSPECT", "message": "job 1: the residual's trend passed its alarm level",
+               "cycle": 17, "at": "2026-12-01T10:00:00+00:00", "job": 1}
+    try:
+        plant_cell.beat.health = {"latched": None, "warning": True, "monitors": {}}
+        assert _level_becomes(plant_cell, 1.0) == 1.0
+        plant_cell.beat.health = {"latched": latched, "warning": True, "monitors": {}}
+        assert _level_becomes(plant_cell, 2.0) == 2.0
+        plant_cell.beat.health = {"latched": None, "warning": False, "monitors": {}}
+        assert _level_becomes(plant_cell, 0.0) == 0.0
+    finally:
+        plant_cell.beat.health = None
+
+
 def test_the_metrics_listen_on_loopback_unless_told(tmp_path: Path) -> None:
     plant_toml = tmp_path / "plant.toml"
     plant_toml.write_text("[plant]\nopcua_port = 48299\n")

@@ -91,12 +91,12 @@ def test_the_vision_system_shows_the_journal(plant_cell: PlantCell) -> None:
                     assert await _read(client, idx, f"{base}.ErrorCode") == entry.error.code
                     assert await _read(client, idx, f"{base}.PlcCode") == entry.error.plc_code
                 assert await _read(client, idx, f"{base}.CycleTime") == pytest.approx(entry.timings_s["cycle"])
-            # devices as status.json names them; calibration health not measured by this release
+            # devices as status.json names them; no calibration health in this status file: no data
             assert await _read(client, idx, "VisionSystem.Devices.camera.Connected") is True
             assert await _read(client, idx, "VisionSystem.Devices.robot.LastErrorCode") == "DEVICE_DISCONNECTED"
             health = await _node(client, idx, "VisionSystem.CalibrationHealth.HealthLevel").read_data_value(  # type: ignore[attr-defined]
                 raise_on_bad_status=False)
-            assert health.StatusCode.value == ua.StatusCodes.BadNotSupported
+            assert health.StatusCode.value == ua.StatusCodes.BadNoDataAvailable
         finally:
             await client.disconnect()
 
