@@ -2,11 +2,13 @@
 
 Every cycle that got as far as a solve adds its whitened residual (the chi-square the consistency test holds
 against its threshold, also of a cycle that test refused) to its part type's trend monitor
-(``solver.trend.TrendMonitor``: a CUSUM whose levels give one false alarm per 10,000 good cycles, one warning per
-1,000; docs/health.md). Above the warning level the status word's ``CALIBRATION_WARNING`` bit is set (the cycle
+(``solver.trend.TrendMonitor``: a CUSUM whose alarm level is set for one false alarm per 20,000 good cycles,
+measured 0.5 per 10,000, its warning for one per 1,000; docs/health.md). Above the warning level the status
+word's ``CALIBRATION_WARNING`` bit is set (the cycle
 goes on); at the alarm level the cycle is refused with ``CALIBRATION_SUSPECT`` and the refusal is **latched**:
 every later cycle is refused the same way, before the robot moves, until the cell is recalibrated (a config whose
-calibration values differ: the monitors and the latch start afresh) or the latch is cleared by a passing check.
+calibration values differ: the monitors and the latch start afresh) or a person who inspected the cell clears it
+(``monoguide health --clear REASON``).
 
 Everything lives in ``calibration-health.json`` in the state directory (rewritten atomically after each cycle,
 a few hundred bytes whatever the cell's age): the calibration's identity (a digest of its values), each part
@@ -92,8 +94,8 @@ class CalibrationHealth:
         """Before a cycle moves anything: a latched alarm refuses it."""
         if self.latched is not None:
             raise CalibrationSuspect(f"{self.latched['message']} (latched since cycle {self.latched['cycle']}, "
-                                     f"{self.latched['at']}); nothing moved: a passing check or a new calibration "
-                                     "clears it")
+                                     f"{self.latched['at']}); nothing moved: a new calibration or `monoguide "
+                                     "health --clear REASON` clears it")
 
     def observe(self, job: int, cycle: int, at: str, residual: Residual) -> TrendReading:
         """Add a cycle's residual to its part type's monitor (saved at once); passing the alarm level latches and
