@@ -214,11 +214,17 @@ def encode_inputs(inputs: PlcInputs) -> list[int]:
             uint16_word(inputs.plc_heartbeat, PLC_HEARTBEAT), uint16_word(inputs.part_tag, PART_TAG)]
 
 
+CHECK_JOB = 65535  # register 1: the calibration check, not a part (docs/plc-interface.md, "The check job")
+
+
 def check_job(inputs: PlcInputs, jobs: Collection[int]) -> int:
-    """The job number if it selects one of the config's part entries (``jobs``, numbered from 1); else
-    :class:`PlcValueInvalid` (0) or :class:`PlcUnknownJob` naming register 1, the value and the jobs there are."""
+    """The job number if it selects one of the config's part entries (``jobs``, numbered from 1) or is the check
+    job (:data:`CHECK_JOB`); else :class:`PlcValueInvalid` (0) or :class:`PlcUnknownJob` naming register 1, the
+    value and the jobs there are."""
     if inputs.job == 0:
         raise PlcValueInvalid(f"register {JOB} (job number) = 0: jobs are numbered from 1")
+    if inputs.job == CHECK_JOB:
+        return CHECK_JOB
     if inputs.job not in jobs:
         listed = ", ".join(str(j) for j in sorted(jobs))
         raise PlcUnknownJob(f"register {JOB} (job number) = {inputs.job}: the config has {len(jobs)} "

@@ -24,7 +24,7 @@ from monoguide.daemon.config._part import MeasuringPose, PartConfig, read_part
 from monoguide.daemon.config._reader import ConfigTable
 from monoguide.drivers.errors import ConfigError
 
-MAX_JOB = 65535  # PLC register 1 is a uint16; 0 is "no job"
+MAX_JOB = 65534  # PLC register 1 is a uint16; 0 is "no job", 65535 the check job
 DEFAULT_PART_NAME = "part"  # the older single-part form's name when [part] gives none
 
 

@@ -61,6 +61,7 @@ class Cause(enum.Enum):
     VIEWS_MEASURED = "views measured"
     POSE_SOLVED = "pose solved"
     CHECKS_PASSED = "checks passed"
+    REFERENCE_CHECKED = "calibration check passed"  # the check job: nothing to write
     OFFSET_ACKNOWLEDGED = "offset acknowledged by the robot"
     FAILED = "failed"  # error: any failure of the cycle, including trigger dropped and shutdown abort
     REPORTED = "reported"  # journal committed, DONE shown
@@ -100,7 +101,7 @@ TRANSITIONS: Mapping[State, Mapping[Cause, State]] = {
     },
     State.MEASURING: _cycle_state((Cause.VIEWS_MEASURED, State.SOLVING)),
     State.SOLVING: _cycle_state((Cause.POSE_SOLVED, State.CHECKING)),
-    State.CHECKING: _cycle_state((Cause.CHECKS_PASSED, State.WRITING)),
+    State.CHECKING: {**_cycle_state((Cause.CHECKS_PASSED, State.WRITING)), Cause.REFERENCE_CHECKED: State.REPORTING},
     State.WRITING: _cycle_state((Cause.OFFSET_ACKNOWLEDGED, State.REPORTING)),
     State.REPORTING: {
         Cause.REPORTED: State.AWAITING_ACK,

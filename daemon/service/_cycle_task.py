@@ -29,7 +29,7 @@ from monoguide.daemon.service._devices import CellDevices
 from monoguide.daemon.service._journal import Journal
 from monoguide.daemon.service._offsets import OffsetLedger
 from monoguide.drivers.errors import PlcTriggerDropped
-from monoguide.drivers.plc_registers import PlcInputs, check_job
+from monoguide.drivers.plc_registers import CHECK_JOB, PlcInputs, check_job
 from monoguide.solver.errors import CalibrationSuspect, InconsistentMeasurement, MonoguideError
 
 if TYPE_CHECKING:
@@ -140,14 +140,20 @@ class CycleTask:
         try:
             self.journal.check_identity()  # a journal deleted or replaced: refuse before the robot moves
             job = check_job(inputs, self.runners.jobs)
-            self.runners.check_calibrated(job)
-            if self.health is not None:
+            checking = job == CHECK_JOB  # the calibration check: the first part type's reference part, as taught
+            part_job = self.runners.jobs[0] if checking else job
+            self.runners.check_calibrated(part_job)
+            if self.health is not None and not checking:  # a check runs while latched: it may clear the latch
                 self.health.check_latch()
             images_dir = self.journal.images_dir / f"cycle-{self.journal.next_number()}" if self.keep_images else None
-            runner = self.runners.for_devices(job, self.devices.handle("camera"), self.devices.handle("robot"),
+            runner = self.runners.for_devices(part_job, self.devices.handle("camera"), self.devices.handle("robot"),
                                               images_dir)
-            outcome.measurement = await self._stage(runner.measure, job, self.abort.event, lambda: self.abort.error)
+            outcome.measurement = await self._stage(runner.measure, part_job, self.abort.event,
+                                                    lambda: self.abort.error)
             machine.fire(Cause.VIEWS_MEASURED, f"{len(outcome.measurement.captures)} views")
+            if checking:
+                await self._check(runner, outcome)
+                return outcome
             try:
                 outcome.solution = await self._stage(runner.solve, outcome.measurement)
             except InconsistentMeasurement as exc:  # evidence for the trend monitor too, which may say why
@@ -171,6 +177,37 @@ class CycleTask:
         if outcome.error is None and machine.state is not State.REPORTING:
             outcome.error = CycleError(f"cycle ended in state {machine.state.value}, not reporting")
         return outcome
+
+    async def _check(self, runner: Any, outcome: Outcome) -> None:
+        """The check job's solve and comparison with the reference (``daemon.cycle._check``): a pass clears the
+        calibration latch and ends the cycle OK with nothing written; a failure latches CALIBRATION_SUSPECT."""
+        from monoguide.daemon.cycle._check import describe_views, reference_check, view_offsets
+
+        number, at = self.journal.next_number(), datetime.now(UTC).isoformat(timespec="seconds")
+        names = tuple(p.name for p in runner.config.measuring_poses)
+        try:
+            try:
+                outcome.solution = await self._stage(runner.solve, outcome.measurement)
+            except InconsistentMeasurement as exc:
+                views = view_offsets(outcome.measurement, names)
+                raise CalibrationSuspect(f"check job: the reference part does not fit the calibration: {exc.message}; "
+                                         + describe_views(views)) from exc
+            self.machine.fire(Cause.POSE_SOLVED)
+            found = await self._stage(reference_check, outcome.measurement, outcome.solution, names)
+        except CalibrationSuspect as failed:
+            if self.health is not None:
+                self.health.latch(failed, number, at, CHECK_JOB)
+            raise
+        finally:
+            if self.health is not None and self.shown is not None:
+                self.shown.calibration_warning = self.health.warning
+        outcome.solution.result["check"] = found
+        if self.health is not None:
+            self.health.clear(f"a passing check job (cycle {number}: the reference part within "
+                              f"{found['shift_mm']:.3f} mm / {found['rotation_deg']:.4f} deg of its calibration)")
+            if self.shown is not None:
+                self.shown.calibration_warning = self.health.warning
+        self.machine.fire(Cause.REFERENCE_CHECKED, f"the reference within {found['shift_mm']:.3f} mm")
 
     def _observe(self, job: int, residual: Residual | None, refused: MonoguideError | None = None) -> None:
         """The solve's residual into the part type's trend monitor; its alarm refuses the cycle (CALIBRATION_SUSPECT,

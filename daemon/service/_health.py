@@ -94,8 +94,8 @@ class CalibrationHealth:
         """Before a cycle moves anything: a latched alarm refuses it."""
         if self.latched is not None:
             raise CalibrationSuspect(f"{self.latched['message']} (latched since cycle {self.latched['cycle']}, "
-                                     f"{self.latched['at']}); nothing moved: a new calibration or `monoguide "
-                                     "health --clear REASON` clears it")
+                                     f"{self.latched['at']}); nothing moved: a passing check job (65535), a new "
+                                     "calibration or `monoguide health --clear REASON` clears it")
 
     def observe(self, job: int, cycle: int, at: str, residual: Residual) -> TrendReading:
         """Add a cycle's residual to its part type's monitor (saved at once); passing the alarm level latches and
@@ -127,6 +127,13 @@ class CalibrationHealth:
         if error is not None:
             raise error
         return reading
+
+    def latch(self, error: CalibrationSuspect, cycle: int, at: str, job: int) -> None:
+        """A failed check: latch its refusal (saved)."""
+        self.wait_ready()
+        self.latched = {"code": error.code, "message": error.message, "cycle": cycle, "at": at, "job": job}
+        log.error("%s %s", error.code, error.message)
+        self._save()
 
     def clear(self, why: str) -> None:
         """The latch and the monitors start afresh (saved): an operator's clear after inspecting the cell."""

@@ -155,8 +155,8 @@ def result_registers(outcome: Outcome, number: int, inputs: PlcInputs) -> CycleR
     """Registers 11, 13-33: the offset only when it was written and acknowledged; else zeros and the code."""
     s: Any = outcome.solution
     quality = tuple(float(q) for q in s.quality) if s is not None else ZERO_QUALITY
-    if outcome.error is None:
-        return CycleResult(0, number, inputs.job, inputs.part_tag, tuple(float(v) for v in s.offset),
-                           quality)  # type: ignore[arg-type]
+    if outcome.error is None:  # a check job writes nothing: RESULT_OK with no offset
+        offset = tuple(float(v) for v in s.offset) if outcome.written else ZERO_OFFSET
+        return CycleResult(0, number, inputs.job, inputs.part_tag, offset, quality)  # type: ignore[arg-type]
     return CycleResult(outcome.error.plc_code, number, inputs.job, inputs.part_tag, ZERO_OFFSET,
                        quality)  # type: ignore[arg-type]

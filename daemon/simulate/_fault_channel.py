@@ -46,7 +46,7 @@ FAULT_COMMANDS: dict[str, tuple[str, ...]] = {
 }
 # the robot's one-shot faults (drivers/sim/robot_motion.py FAULT_ACTIONS): Stop/Play now, the cut after the next
 # offset (``robot cut-after-offset MS [DOWN_S]``); copied likewise, checked by tests/drivers/test_robot_faults.py
-ROBOT_ACTIONS: tuple[str, ...] = ("restart", "cut-after-offset")
+ROBOT_ACTIONS: tuple[str, ...] = ("restart", "cut-after-offset", "reference-part")
 # the calibration faults (drivers/sim/calibration_faults.py CALIBRATION_FAULTS): copied likewise, checked by
 # tests/daemon/simulate/test_calibration_faults.py; persistent, see the module's doc
 CALIBRATION_COMMANDS: dict[str, tuple[str, ...]] = {"camera": ("bump", "focal"), "pose": ("drift",)}

@@ -46,6 +46,8 @@ class PartSupply:
 
     def __init__(self, seed: int, supply: dict[str, Any], T_b_g0: np.ndarray, log_path: Path | None) -> None:
         self.seed = seed
+        self.reference_next = False  # the next part is the reference part, as taught (``robot reference-part``)
+        self.reference = False  # the current part is
         self.T_cf_b = np.asarray(supply["T_cf_b"], dtype=float)
         self.T_cf_w0 = np.asarray(supply["T_cf_w0"], dtype=float)
         self.supply = supply
@@ -101,8 +103,11 @@ class PartSupply:
         self.T_b_w0 = compose(invert(self.T_cf_b), T_cf_w0)
         rng = np.random.default_rng([self.seed, PART_STREAM, self.part])
         self.T_cf_w = compose(T_cf_w0, draw_deviation(rng, supply_envelope(kind, self.supply), np.zeros((1, 3))))
+        self.reference, self.reference_next = self.reference_next, False
+        if self.reference:
+            self.T_cf_w = T_cf_w0.copy()
         self._logged = False
-        log.info("part %d (type %d) arrives", self.part, self.job)
+        log.info("part %d (type %d%s) arrives", self.part, self.job, ", the reference part" if self.reference else "")
         return self.T_b_w
 
     def offset_applied(self, part: int, D_b: np.ndarray, grasp_error_mm: float, grasp_error_deg: float) -> None:
@@ -123,6 +128,7 @@ class PartSupply:
         line = {
             "part": self.part,
             "part_type": self.job,
+            **({"reference": True} if self.reference else {}),
             "T_cf_w": self.T_cf_w.tolist(),
             "offset_ideal": list(T_to_kuka_frame(compose(self.T_b_w, invert(self.T_b_w0)))),
             "offset_written": None if D_b is None else list(T_to_kuka_frame(D_b)),

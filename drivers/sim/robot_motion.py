@@ -207,6 +207,10 @@ class SimRobotProgram:
         if fault.name == "cut-after-offset":
             self._cut = fault
             return
+        if fault.name == "reference-part":
+            if self.supply is not None:
+                self.supply.reference_next = True
+            return
         was = self.fault
         self.fault = fault.name
         if fault.name != "protective-stop":

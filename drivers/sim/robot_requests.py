@@ -12,7 +12,9 @@ from typing import Protocol
 import numpy as np
 
 FAULT_MODES = ("none", "stall", "drop", "protective-stop", "never-reach", "no-ack", "program-stopped")
-FAULT_ACTIONS = ("restart", "cut-after-offset")  # one-shot: they act once, and leave the mode in force as it was
+# one-shot: they act once, and leave the mode in force as it was; ``reference-part``: the part supply's next part is
+# the reference part, exactly as taught (a check job measures it)
+FAULT_ACTIONS = ("restart", "cut-after-offset", "reference-part")
 CUT_DOWN_S = 1.0  # cut-after-offset: how long new connections are closed at once (default)
 MAX_CUT_MS = 60_000.0
 

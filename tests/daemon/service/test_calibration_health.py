@@ -31,7 +31,7 @@ from monoguide.daemon.cycle import Residual
 from monoguide.daemon.service import Journal
 from monoguide.daemon.service._health import HEALTH_FILE, CalibrationHealth, request_clear
 from monoguide.daemon.simulate import dumps_toml
-from monoguide.drivers.plc_registers import Control, Status
+from monoguide.drivers.plc_registers import CHECK_JOB, Control, Status
 from monoguide.solver.errors import CalibrationSuspect
 from monoguide.solver.frames import invert, make_T, rotvec_to_matrix
 
@@ -110,14 +110,14 @@ def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
     process, _ = start_sim_cell(truth, "--no-plc", "--part-types", "1", stdin=subprocess.PIPE, timeout_s=START_S)
     keep_reading(process)
     try:
-        yield {"truth": truth, "tmp": tmp, "bumped": _bumped(truth, tmp / "bumped.toml", 0.3, 1)}
+        yield {"truth": truth, "tmp": tmp, "bumped": _bumped(truth, tmp / "bumped.toml", 0.3, 1), "sim": process}
     finally:
         stop(process, 15.0)
 
 
-async def _part(line: Line, tag: int) -> tuple[Status, Any, Status]:
+async def _part(line: Line, tag: int, job: int = 1) -> tuple[Status, Any, Status]:
     ready = await line.wait(lambda s: Status.READY in s and not s & Status.DONE, "READY", START_S)
-    await line.control(Control.TRIGGER, job=1, tag=tag)
+    await line.control(Control.TRIGGER, job=job, tag=tag)
     status = await line.wait(lambda s: Status.DONE in s, "DONE", CYCLE_S)
     result = (await line.outputs()).result
     await line.acknowledge()
@@ -130,11 +130,20 @@ def _run(config: Path, state_dir: Path, cycles: int) -> subprocess.Popen[bytes]:
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
 
 
-async def _parts(config: Path, state_dir: Path, tags: list[int]) -> list[tuple[Status, Any, Status]]:
+async def _parts(config: Path, state_dir: Path, tags: list[int], jobs: list[int] | None = None,
+                 sim: subprocess.Popen[str] | None = None) -> list[tuple[Status, Any, Status]]:
+    """``tags`` parts (job 1, or ``jobs``); before a check job (65535) sim-cell is told to present the reference
+    part next."""
     service = _run(config, state_dir, len(tags))
     try:
         async with plc_line(PLC_HOST, PLC_PORT) as line:
-            outcomes = [await _part(line, tag) for tag in tags]
+            outcomes = []
+            for tag, job in zip(tags, jobs or [1] * len(tags), strict=True):
+                if job == CHECK_JOB:
+                    assert sim is not None and sim.stdin is not None
+                    sim.stdin.write("robot reference-part\n")
+                    sim.stdin.flush()
+                outcomes.append(await _part(line, tag, job))
             after = await line.wait(lambda s: not s & Status.BUSY, "the last cycle's end", CYCLE_S)
         _, err = service.communicate(timeout=60)
         assert service.returncode == 0, err.decode()[-2000:]
@@ -201,3 +210,41 @@ def test_an_operators_clear_resets_the_latch_with_its_reason(tmp_path: Path) -> 
             health.observe(1, k, "2026-12-01T11:00:00+00:00", Residual(40.0, 2))
     request_clear(tmp_path, "inspected")
     assert CalibrationHealth(tmp_path, config).latched is None
+
+
+@in_own_event_loop
+async def test_the_check_job_fails_on_a_bumped_camera_and_a_passing_one_clears_the_latch(
+        cell: dict[str, Any]) -> None:
+    # the bumped calibration: the reference part, lying as taught, is measured away from it: 208, latched
+    state_dir = cell["tmp"] / "state-check"
+    *outcomes, _ = await _parts(cell["bumped"], state_dir, [31, 32], [CHECK_JOB, 1], cell["sim"])
+    (check, check_result, _), (_, part_result, _) = outcomes
+    assert check & ~Status.CALIBRATION_WARNING == Status.DONE | Status.ERROR and check_result.error_code == 208
+    assert Status.CALIBRATION_WARNING in check and part_result.error_code == 208  # the part job after: latched
+    with Journal(state_dir, read_only=True) as journal:
+        failed, latched = journal.last_cycles(2)[::-1]
+    assert failed.job == CHECK_JOB and failed.error_code == "CALIBRATION_SUSPECT"
+    assert failed.error_message.startswith("check job: the reference part ")  # measured off it, or not fitting it
+    assert "px from where the calibration puts it" in failed.error_message and "views: S1 " in failed.error_message
+    assert "latched since cycle 1" in latched.error_message
+
+    # the truth's calibration, latched (as after an alarm): a check of the reference part passes and clears it
+    state_dir = cell["tmp"] / "state-check-pass"
+    state_dir.mkdir()
+    health = CalibrationHealth(state_dir, load_cell_config(cell["truth"]))
+    with pytest.raises(CalibrationSuspect):
+        for k in range(1, 50):
+            health.observe(1, k, "2026-12-01T10:00:00+00:00", Residual(40.0, 2))
+    *outcomes, _ = await _parts(cell["truth"], state_dir, [41, 42, 43], [1, CHECK_JOB, 1], cell["sim"])
+    codes = [result.error_code for _, result, _ in outcomes]
+    assert codes == [208, 0, 0], codes
+    statuses = [status for status, _, _ in outcomes]
+    assert statuses[1:] == [Status.DONE | Status.RESULT_OK] * 2, statuses
+    assert outcomes[1][1].offset == (0.0,) * 6  # a check writes nothing
+    with Journal(state_dir, read_only=True) as journal:
+        rows = journal.last_cycles(3)[::-1]
+    check_row = rows[1]
+    assert check_row.job == CHECK_JOB and check_row.status == "ok" and check_row.result["check"]["passed"] is True
+    assert check_row.result["check"]["shift_mm"] <= check_row.result["check"]["limit_mm"]
+    saved = json.loads((state_dir / HEALTH_FILE).read_text())
+    assert saved["latched"] is None and saved["cleared"].startswith("a passing check job")
