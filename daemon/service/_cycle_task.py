@@ -157,9 +157,9 @@ class CycleTask:
             try:
                 outcome.solution = await self._stage(runner.solve, outcome.measurement)
             except InconsistentMeasurement as exc:  # evidence for the trend monitor too, which may say why
-                self._observe(job, getattr(exc, "residual", None), exc)
+                await self._observe(job, getattr(exc, "residual", None), exc)
                 raise
-            self._observe(job, getattr(outcome.solution, "residual", None))  # a stand-in runner's has none
+            await self._observe(job, getattr(outcome.solution, "residual", None))  # a stand-in runner's has none
             machine.fire(Cause.POSE_SOLVED)
             await self._stage(runner.check, outcome.measurement, outcome.solution)
             machine.fire(Cause.CHECKS_PASSED)
@@ -209,14 +209,14 @@ class CycleTask:
                 self.shown.calibration_warning = self.health.warning
         self.machine.fire(Cause.REFERENCE_CHECKED, f"the reference within {found['shift_mm']:.3f} mm")
 
-    def _observe(self, job: int, residual: Residual | None, refused: MonoguideError | None = None) -> None:
+    async def _observe(self, job: int, residual: Residual | None, refused: MonoguideError | None = None) -> None:
         """The solve's residual into the part type's trend monitor; its alarm refuses the cycle (CALIBRATION_SUSPECT,
         latched), in place of the consistency test's own refusal, which does not say why."""
         if self.health is None or residual is None:
             return
-        try:
-            self.health.observe(job, self.journal.next_number(), datetime.now(UTC).isoformat(timespec="seconds"),
-                                residual)
+        try:  # in a worker thread: the first may wait for the monitors' levels, the loop must not
+            await asyncio.to_thread(self.health.observe, job, self.journal.next_number(),
+                                    datetime.now(UTC).isoformat(timespec="seconds"), residual)
         except CalibrationSuspect as alarm:
             if refused is not None:
                 raise alarm from refused

@@ -75,6 +75,7 @@ class CalibrationHealth:
         self.latched: dict[str, Any] | None = None
         self.last: dict[int, TrendReading] = {}
         self.cleared: str | None = None  # the last operator's clear (its reason)
+        self._reset_pending = False
         self._load_latch()
         # the monitors' levels take a second or two to compute: beside the start, not in READY's way nor in a cycle
         self._ready = threading.Thread(target=self._load_monitors, args=(config,), name="trend-levels", daemon=True)
@@ -130,19 +131,21 @@ class CalibrationHealth:
 
     def latch(self, error: CalibrationSuspect, cycle: int, at: str, job: int) -> None:
         """A failed check: latch its refusal (saved)."""
-        self.wait_ready()
         self.latched = {"code": error.code, "message": error.message, "cycle": cycle, "at": at, "job": job}
         log.error("%s %s", error.code, error.message)
         self._save()
 
     def clear(self, why: str) -> None:
-        """The latch and the monitors start afresh (saved): an operator's clear after inspecting the cell."""
-        self.wait_ready()
+        """The latch and the monitors start afresh (saved): an operator's clear after inspecting the cell, a passing
+        check. Never waits: monitors still being restored at start are reset once they are."""
         log.warning("calibration latch %s and trend monitors reset: %s",
                     "cleared" if self.latched is not None else "(none)", why)
         self.latched, self.last, self.cleared = None, {}, why
-        for monitor in self.monitors.values():
-            monitor.reset()
+        if self._ready.is_alive():
+            self._reset_pending = True
+        else:
+            for monitor in self.monitors.values():
+                monitor.reset()
         self._save()
 
     def take_clear_request(self) -> bool:
@@ -206,12 +209,23 @@ class CalibrationHealth:
             dof = 2 * sum(len(pose.points) for pose in config.for_job(job).measuring_poses) - 6
             if dof > 0 and (job not in monitors or monitors[job].levels.dof != dof):
                 monitors[job] = TrendMonitor(dof, alarm_arl0=SERVICE_ALARM_ARL0)
+        if self._reset_pending:  # cleared while they were being restored
+            for monitor in monitors.values():
+                monitor.reset()
         self.monitors = monitors
         self.last = {job: m.reading() for job, m in monitors.items() if m.reading().cycles}
 
     def _save(self) -> None:
+        if self._ready.is_alive():  # the monitors are not restored yet: the latch alone (they are saved later)
+            data = self._data or {"format": HEALTH_FORMAT, "calibration": self.identity, "monitors": {}}
+            data = {**data, "latched": self.latched, "cleared": self.cleared}
+            self._write(data)
+            return
         data = {"format": HEALTH_FORMAT, "calibration": self.identity, "latched": self.latched, "cleared": self.cleared,
                 "monitors": {str(job): monitor.state for job, monitor in sorted(self.monitors.items())}}
+        self._write(data)
+
+    def _write(self, data: dict[str, Any]) -> None:
         try:
             write_atomic(self.path, json.dumps(data, indent=1) + "\n")
         except OSError as exc:  # the journal keeps every cycle; this file is only the monitors' running sums
