@@ -32,6 +32,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "plant": ("monoguide.daemon.cli.plant", "plant", "The cell to the plant: OPC UA (Machine Vision) and Prometheus."),
     "web": ("monoguide.daemon.cli.web", "web", "The operator page: the cell in a browser, read-only."),
     "health": ("monoguide.daemon.cli.health", "health", "How well the calibration still fits: trend, residuals."),
+    "check": ("monoguide.daemon.cli.check", "check", "Check the calibration on the reference part (service stopped)."),
 }
 
 

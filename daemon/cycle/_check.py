@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from monoguide.daemon.cycle._record import Measurement, Solution
-from monoguide.solver.errors import CalibrationSuspect
+from monoguide.solver.errors import CalibrationSuspect, InconsistentMeasurement
 from monoguide.solver.problem import reprojection
 
 CHECK_SIGMAS = 3.5
@@ -65,3 +65,17 @@ def reference_check(measurement: Measurement, solution: Solution, view_names: tu
             f"taught (limits {limit_mm:.3f} mm / {limit_deg:.4f} deg, {CHECK_SIGMAS:g} x its predicted sigma); "
             + describe_views(views))
     return found
+
+
+def solve_and_check(runner: Any, measurement: Measurement) -> tuple[Solution, dict[str, Any]]:
+    """The check's solve (``runner.solve``) and :func:`reference_check`: the solution and the findings, or
+    :class:`CalibrationSuspect` (a reference part that does not even fit the calibration names every view too)."""
+    names = tuple(p.name for p in runner.config.measuring_poses)
+    try:
+        solution = runner.solve(measurement)
+    except InconsistentMeasurement as exc:
+        raise CalibrationSuspect(f"check job: the reference part does not fit the calibration: {exc.message}; "
+                                 + describe_views(view_offsets(measurement, names))) from exc
+    found = reference_check(measurement, solution, names)
+    solution.result["check"] = found
+    return solution, found

@@ -181,19 +181,12 @@ class CycleTask:
     async def _check(self, runner: Any, outcome: Outcome) -> None:
         """The check job's solve and comparison with the reference (``daemon.cycle._check``): a pass clears the
         calibration latch and ends the cycle OK with nothing written; a failure latches CALIBRATION_SUSPECT."""
-        from monoguide.daemon.cycle._check import describe_views, reference_check, view_offsets
+        from monoguide.daemon.cycle._check import solve_and_check
 
         number, at = self.journal.next_number(), datetime.now(UTC).isoformat(timespec="seconds")
-        names = tuple(p.name for p in runner.config.measuring_poses)
         try:
-            try:
-                outcome.solution = await self._stage(runner.solve, outcome.measurement)
-            except InconsistentMeasurement as exc:
-                views = view_offsets(outcome.measurement, names)
-                raise CalibrationSuspect(f"check job: the reference part does not fit the calibration: {exc.message}; "
-                                         + describe_views(views)) from exc
+            outcome.solution, found = await self._stage(solve_and_check, runner, outcome.measurement)
             self.machine.fire(Cause.POSE_SOLVED)
-            found = await self._stage(reference_check, outcome.measurement, outcome.solution, names)
         except CalibrationSuspect as failed:
             if self.health is not None:
                 self.health.latch(failed, number, at, CHECK_JOB)
@@ -201,7 +194,6 @@ class CycleTask:
         finally:
             if self.health is not None and self.shown is not None:
                 self.shown.calibration_warning = self.health.warning
-        outcome.solution.result["check"] = found
         if self.health is not None:
             self.health.clear(f"a passing check job (cycle {number}: the reference part within "
                               f"{found['shift_mm']:.3f} mm / {found['rotation_deg']:.4f} deg of its calibration)")

@@ -15,7 +15,8 @@ from monoguide.daemon.cli import app
 
 PREVIOUS = json.loads((Path(__file__).parent / "data" / "cli_surface_0.1.0.json").read_text())
 ADDED = {  # a new command (all of it), new options of a command
-    "init": None, "web": None, "plant": None, "health": None, "run": {"clear_status"}, "sim-cell": {"part_types"},
+    "init": None, "web": None, "plant": None, "health": None, "check": None, "run": {"clear_status"},
+    "sim-cell": {"part_types"},
     "simulate": {"jobs", "web"}, "journal list": {"job"}, "calibrate": {"job"},
 }
 

@@ -248,3 +248,32 @@ async def test_the_check_job_fails_on_a_bumped_camera_and_a_passing_one_clears_t
     assert check_row.result["check"]["shift_mm"] <= check_row.result["check"]["limit_mm"]
     saved = json.loads((state_dir / HEALTH_FILE).read_text())
     assert saved["latched"] is None and saved["cleared"].startswith("a passing check job")
+
+
+def _check_command(config: Path, state_dir: Path, sim: subprocess.Popen[str]) -> subprocess.CompletedProcess[str]:
+    assert sim.stdin is not None
+    sim.stdin.write("robot reference-part\n")
+    sim.stdin.flush()
+    return subprocess.run([sys.executable, "-m", "monoguide.daemon.cli", "check", "--config", str(config),
+                           "--state-dir", str(state_dir), "--json"], capture_output=True, text=True, timeout=120)
+
+
+def test_monoguide_check_from_the_command_line_journals_and_latches_as_the_check_job(cell: dict[str, Any]) -> None:
+    failed_dir, passed_dir = cell["tmp"] / "state-cli-bumped", cell["tmp"] / "state-cli-truth"
+    failed = _check_command(cell["bumped"], failed_dir, cell["sim"])
+    assert failed.returncode == 1, failed.stderr[-2000:]
+    assert "CALIBRATION_SUSPECT check failed: check job: the reference part " in failed.stderr
+    assert json.loads(failed.stdout.strip().splitlines()[-1])["passed"] is False
+    with Journal(failed_dir, read_only=True) as journal:
+        (row,) = journal.last_cycles(1)
+    assert (row.job, row.status, row.error_code) == (CHECK_JOB, "error", "CALIBRATION_SUSPECT")
+    assert json.loads((failed_dir / HEALTH_FILE).read_text())["latched"]["job"] == CHECK_JOB
+
+    passed = _check_command(cell["truth"], passed_dir, cell["sim"])
+    assert passed.returncode == 0, passed.stderr[-2000:]
+    found = json.loads(passed.stdout.strip().splitlines()[-1])["check"]
+    assert found["passed"] is True and found["shift_mm"] <= found["limit_mm"] and set(found["views"]) == {
+        "S1", "S2", "S3", "S4"}
+    with Journal(passed_dir, read_only=True) as journal:
+        (row,) = journal.last_cycles(1)
+    assert (row.job, row.status) == (CHECK_JOB, "ok") and row.result["check"]["passed"] is True
