@@ -1,4 +1,4 @@
-"""Fixed reference marks (issue 20, item 1), at solver level. Prints tables; asserts nothing.
+"""Fixed reference marks, at solver level. Prints tables; asserts nothing.
 
 A solver-level Monte Carlo over the simulated roof cell: the roof's measuring poses of ``config/sim-cell.toml``
 (``--layout planned``, the default: the layout the issue's figures are for, the camera 180 mm off the flange) or the

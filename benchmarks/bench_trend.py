@@ -1,4 +1,4 @@
-"""The trend monitor against calibration faults (issue 20, item 3). Prints tables; asserts nothing.
+"""The trend monitor against calibration faults. Prints tables; asserts nothing.
 
 Solver-level Monte Carlo over the paper's roof cell (``solver.synthetic.paper_roof_cell``: four views straight down
 from 650 mm, one hole each, 2 degrees of freedom per cycle), parts drawn in +-5 deg / +-50 mm, 0.1 px centre noise

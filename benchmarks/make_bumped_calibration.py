@@ -21,8 +21,9 @@ from pathlib import Path
 import numpy as np
 import tomlkit
 
-from monoguide.drivers.sim.calibration_faults import AXES, bump_motion
+from monoguide.drivers.sim.calibration_faults import bump_motion
 from monoguide.drivers.toml_format import matrix, opening_comment
+from monoguide.solver.calibration_faults import AXES
 from monoguide.solver.frames import compose, invert
 
 SIM_CELL = Path(__file__).parents[1] / "config" / "sim-cell.toml"

@@ -1,9 +1,9 @@
 """Calibration faults at the solver level: what a cell whose calibration has gone bad observes while the solver
-keeps the calibrated model (issue 20, item 5; for Monte Carlos over a ``solver.synthetic`` cell; seeded, no I/O).
+keeps the calibrated model (for Monte Carlos over a ``solver.synthetic`` cell; seeded, no I/O).
 
 - camera bump: the camera turned and moved on its bracket by ``bump`` (a rigid motion in the camera's own axes,
-  about its centre); the robot's poses unchanged. The calibration then states the truth right-multiplied by the
-  inverse of the bump (issue 20: "``T_f_c`` and every ``T_cf_si`` right-multiplied by the inverse of the bump"), so
+  about its centre); the robot's poses unchanged. The calibration, made before the bump, then states the truth
+  right-multiplied by the inverse of the bump (``T_f_c`` and every ``T_cf_si``), so
   the camera truly stands at ``T_s1_si @ bump`` (``T_s1_si`` the calibrated pose, SF1 the calibrated, cell-fixed
   frame the offset is written in);
 - focal change: the lens's focal length (``fx``, ``fy``) differs by ``focal_pct`` percent, everything else kept;

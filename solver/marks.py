@@ -1,4 +1,4 @@
-"""Fixed reference marks: every view's camera pose measured in each cycle, jointly with the part (issue 20, item 1).
+"""Fixed reference marks: every view's camera pose measured in each cycle, jointly with the part.
 
 A view that sees a few marks of the cell (on the fixture, surveyed once with the laser tracker) observes where its
 camera really stood. The estimator is maximum likelihood over, in SF1 of the calibration:

@@ -42,7 +42,7 @@ from monoguide.solver.problem import PoseProblem, reprojection
 from monoguide.solver.uncertainty import whitening
 
 DEFAULT_SCALE = 1.5
-ALARM_ARL0 = 10_000  # good cycles per false alarm (the default)
+ALARM_ARL0 = 10_000  # good cycles per false alarm (the stated default)
 # The service's alarm: nominally 20,000, because the solver's chi-square runs a little heavier than the model's
 # (mean 2.008 for 2, benchmarks/bench_trend.py); at the nominal 10,000 it alarmed 1.6 times per 10,000 good cycles.
 SERVICE_ALARM_ARL0 = 20_000

@@ -26,7 +26,7 @@ import typer
 
 from monoguide.daemon.cli._console import say, stderr_console, stdout_console
 from monoguide.daemon.cli._policy import EXIT_OK, EXIT_USAGE, exit_status, fail, report
-from monoguide.daemon.config import load_cell_config, require_sections
+from monoguide.daemon.config import CellConfig, load_cell_config, require_sections
 from monoguide.daemon.errors import CycleAborted
 from monoguide.daemon.service import STATE_DIR_HELP, CycleEntry, Journal, ServiceLock, state_dir
 from monoguide.drivers.plc_registers import CHECK_JOB
@@ -56,15 +56,15 @@ def check(
     raise typer.Exit(code)
 
 
-def _run(cfg: object, directory: Path, json_out: bool) -> int:
+def _run(cfg: CellConfig, directory: Path, json_out: bool) -> int:
     from monoguide.daemon.assembly import build_camera, build_robot
     from monoguide.daemon.cycle import CycleRunner
     from monoguide.daemon.cycle._check import solve_and_check
     from monoguide.daemon.service._health import CalibrationHealth
 
     out = stderr_console() if json_out else stdout_console()  # --json: standard output is the JSON's
-    first = cfg.for_job(cfg.jobs[0])  # type: ignore[attr-defined]
-    health = CalibrationHealth(directory, cfg)  # type: ignore[arg-type]
+    first = cfg.for_job(cfg.jobs[0])
+    health = CalibrationHealth(directory, cfg)
     started = time.time()
     found, error, measurement, solution = None, None, None, None
     camera, robot = build_camera(first), build_robot(first)

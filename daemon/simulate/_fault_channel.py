@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from monoguide.daemon.simulate._devices import Device
+from monoguide.solver.calibration_faults import AXES
 
 log = logging.getLogger(__name__)
 
@@ -50,7 +51,6 @@ ROBOT_ACTIONS: tuple[str, ...] = ("restart", "cut-after-offset", "reference-part
 # the calibration faults (drivers/sim/calibration_faults.py CALIBRATION_FAULTS): copied likewise, checked by
 # tests/daemon/simulate/test_calibration_faults.py; persistent, see the module's doc
 CALIBRATION_COMMANDS: dict[str, tuple[str, ...]] = {"camera": ("bump", "focal"), "pose": ("drift",)}
-AXES = ("x", "y", "z")
 MAX_BUMP_DEG, MAX_BUMP_MM = 10.0, 100.0  # a camera still on its bracket
 MAX_FOCAL_PCT = 50.0
 MAX_DRIFT_MM, MAX_DRIFT_DEG = 100.0, 10.0

@@ -55,7 +55,7 @@ FAULT_PLAN: tuple[Fault, ...] = (
 
 # the codes with which today's cycle may refuse a cycle under a calibration fault (it may also not refuse it)
 CALIBRATION_CODES: tuple[str, ...] = ("CALIBRATION_SUSPECT", "INCONSISTENT_MEASUREMENT", "RESIDUAL_TOO_LARGE")
-# issue 20's table ("Why"), and a focal change and a pose drift of its targets
+# the faults of the calibration-health table (docs/health.md), and a focal change and a pose drift
 CALIBRATION_FAULT_PLAN: tuple[Fault, ...] = (
     ("camera", "bump 0 1 x", CALIBRATION_CODES),
     ("camera", "bump 0.1 0 x", CALIBRATION_CODES),

@@ -6,7 +6,7 @@ whether each was met (a benchmark: missing one does not fail the run).
 A calibration fault's outcome is what happened over its parts: the cycles ok with their grasp error (truth log),
 those beyond the paper's 0.5 mm, and those refused with their codes; it expects no refusal. The run's grasp error
 (RMS, max, the grasp target) is that of the good cycles under no calibration fault; the target
-``calibration_faults_ok_beyond_0.5mm`` (issue 20: no confident wrong answer) counts the cycles ok beyond 0.5 mm
+``calibration_faults_ok_beyond_0.5mm`` (no confident wrong answer) counts the cycles ok beyond 0.5 mm
 under one.
 """
 

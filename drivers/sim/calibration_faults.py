@@ -1,8 +1,8 @@
 """Calibration faults of the simulated cell: the camera knocked on its bracket, the lens's focal length changed, a
 measuring pose re-touched. The simulated camera renders with them; the service keeps its calibration, the part
-supply its truth, so the grasp error in the truth log shows what the fault cost (docs/simulate.md, issue 20).
+supply its truth, so the grasp error in the truth log shows what the fault cost (docs/simulate.md).
 
-The conventions (issue 20, "Why"; the same as ``monoguide simulate --calibration`` with a file made by
+The conventions (the same as ``monoguide simulate --calibration`` with a file made by
 ``benchmarks/make_bumped_calibration.py``):
 
 - **camera bump** ``B = bump_motion(deg, mm, axis)``: a rotation of ``deg`` about the camera's own axis ``axis``
@@ -31,22 +31,19 @@ from typing import Any
 
 import numpy as np
 
+from monoguide.solver.calibration_faults import axis_motion
 from monoguide.solver.camera import CameraModel
 from monoguide.solver.frames import compose, invert, make_T, rotvec_to_matrix
 
 # the commands ``monoguide sim-cell`` takes for them, per device word (daemon/simulate/_fault_channel.py copies
 # them: runtime code never imports the simulator; tests/daemon/simulate/test_calibration_faults.py compares)
 CALIBRATION_FAULTS: dict[str, tuple[str, ...]] = {"camera": ("bump", "focal"), "pose": ("drift",)}
-AXES = ("x", "y", "z")
 DRIFT_DIRECTION_F = np.ones(3) / math.sqrt(3.0)  # the pose drift's direction in the flange frame (unit)
 
 
 def bump_motion(deg: float, mm: float, axis: str = "x") -> np.ndarray:
-    """``B`` (4, 4): ``deg`` about and ``mm`` along the camera's own ``axis``."""
-    if axis not in AXES:
-        raise ValueError(f"axis {axis!r}: expected one of {', '.join(AXES)}")
-    unit = np.eye(3)[AXES.index(axis)]
-    return make_T(rotvec_to_matrix(math.radians(deg) * unit), mm * unit)
+    """``B`` (4, 4): ``deg`` about and ``mm`` along the camera's own ``axis`` (the solver's fault geometry)."""
+    return axis_motion(axis, deg, mm)
 
 
 def drift_motion(mm: float, deg: float) -> np.ndarray:
