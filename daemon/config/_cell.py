@@ -45,6 +45,7 @@ from monoguide.daemon.config._calibration import (
 from monoguide.daemon.config._camera import CameraConfig, read_camera
 from monoguide.daemon.config._devices import PlcConfig, RobotConfig, TrackerConfig, read_plc, read_robot, read_tracker
 from monoguide.daemon.config._layout import LayoutConfig, read_layout
+from monoguide.daemon.config._marks import MARKS_KEY, ReferenceMarkConfig, read_reference_marks, resolve_pose_marks
 from monoguide.daemon.config._part import (
     MeasuringPose,
     PartConfig,
@@ -106,6 +107,7 @@ class CellConfig:
     part_name: str = DEFAULT_PART_NAME
     parts: tuple[PartType, ...] = ()
     cell_poses: tuple[MeasuringPose, ...] = ()  # every measuring pose of the cell, in robot pose number order
+    reference_marks: tuple[ReferenceMarkConfig, ...] = ()  # [[reference_marks]]: the cell's fixed marks
 
     @property
     def jobs(self) -> tuple[int, ...]:
@@ -158,34 +160,44 @@ def load_cell_config(path: str | os.PathLike[str]) -> CellConfig:
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML: {exc}") from exc
     root = ConfigTable(raw, path)
-    root.reject_unknown((*REQUIRED_SECTIONS, *PARTS_SECTIONS, *OPTIONAL_SECTIONS))  # a misspelt section: not "missing"
+    # a misspelt section: not "missing"
+    root.reject_unknown((*REQUIRED_SECTIONS, *PARTS_SECTIONS, *OPTIONAL_SECTIONS, MARKS_KEY))
     name = _cell_name(root.table("cell"))
     camera = read_camera(root.table("camera"))
+    marks = read_reference_marks(root.tables(MARKS_KEY))
     if root.has("parts"):
         if root.has("part"):
             raise ConfigError(f"{path}: [part] and [[parts]]: give one [part] (job 1) or [[parts]], not both")
         reference = read_reference(root.optional_table("reference"), with_part=False)
-        cell_poses = read_measuring_poses(root.tables("measuring_poses", required=True), reference, camera, None)
+        cell_poses = _with_marks(read_measuring_poses(root.tables("measuring_poses", required=True), reference, camera,
+                                                      None), marks, path)
         parts = read_parts(root.tables("parts", required=True), cell_poses)
     else:
         part_table = root.table("part")
         part_name = part_table.text("name", DEFAULT_PART_NAME, nonempty=True)
         part = read_part(part_table)
         reference = read_reference(root.table("reference"))
-        cell_poses = read_measuring_poses(root.tables("measuring_poses", required=True), reference, camera,
-                                          len(part.points_w))
+        cell_poses = _with_marks(read_measuring_poses(root.tables("measuring_poses", required=True), reference, camera,
+                                                      len(part.points_w)), marks, path)
         parts = (single_part(part_name, part, reference.T_cf_w0, cell_poses, None),)
     optional = {key: read(root.table(key)) if root.has(key) else None for key, read in OPTIONAL_SECTIONS.items()}
     parts = tuple(replace(p, layout=p.layout or optional["layout"]) for p in parts)
     first = parts[0]
     config = CellConfig(path, name, camera, first.part, ReferenceConfig(first.T_cf_w0, reference.T_cf_b),
                         first.measuring_poses, **{**optional, "layout": first.layout}, job=first.job,
-                        part_name=first.name, parts=parts, cell_poses=cell_poses)
+                        part_name=first.name, parts=parts, cell_poses=cell_poses, reference_marks=marks)
     _check_backends(config)
     if config.robot is not None or config.plc is not None:  # a cell that runs cycles
         for job in config.jobs:
             _check_redundancy(config.for_job(job))
     return config
+
+
+def _with_marks(poses: tuple[MeasuringPose, ...], marks: tuple[ReferenceMarkConfig, ...],
+                path: Path) -> tuple[MeasuringPose, ...]:
+    """Each pose's ``marks = [names]`` as indices into ``[[reference_marks]]`` (ConfigError naming an unknown one)."""
+    return tuple(replace(p, marks=resolve_pose_marks(f"{path}: [[measuring_poses]] {p.name}", p.mark_names, marks))
+                 for p in poses)
 
 
 def require_sections(config: CellConfig, sections: Iterable[str], *, command: str) -> None:

@@ -22,6 +22,7 @@ class PartConfig:
     point_names: tuple[str, ...]
     grasp_point_w: np.ndarray | None = None  # (3,) where the robot grips, mm; None: the holes' centroid
     normals_w: np.ndarray | None = None  # (n, 3) surface normal at each hole; None: the part's z axis
+    outline_w: np.ndarray | None = None  # (m, 3) the part's outer edge, a polygon in the part frame; None: not given
 
 
 def read_part(t: ConfigTable) -> PartConfig:
@@ -33,8 +34,11 @@ def read_part(t: ConfigTable) -> PartConfig:
     normals = t.points("normals_w") if t.has("normals_w") else None
     if normals is not None and (len(normals) != len(points) or np.any(np.linalg.norm(normals, axis=1) < 1e-9)):
         raise ConfigError(f"{t.where}.normals_w: expected one non-zero normal per point of points_w ({len(points)})")
+    outline = t.points("outline_w") if t.has("outline_w") else None
+    if outline is not None and len(outline) < 3:
+        raise ConfigError(f"{t.where}.outline_w: expected a polygon of at least 3 corners, got {len(outline)}")
     out = PartConfig(points, t.number("hole_radius_mm", positive=True), names, t.vector("grasp_point_w", 3, None),
-                     normals)
+                     normals, outline)
     t.done()
     return out
 
@@ -63,6 +67,8 @@ class MeasuringPose:
     points: tuple[int, ...]  # featured points expected in this view
     T_b_f: np.ndarray | None = None  # taught flange pose, when known
     number: int = 0  # the robot pose number: its place in the cell's [[measuring_poses]] (S1 = 1)
+    mark_names: tuple[str, ...] = ()  # the fixed marks it sees ([[reference_marks]] names)
+    marks: tuple[int, ...] = ()  # the same, as indices into CellConfig.reference_marks (set by the loader)
 
 
 def read_measuring_poses(entries: list[ConfigTable], ref: ReferenceConfig, cam: CameraConfig,
@@ -85,8 +91,9 @@ def read_measuring_poses(entries: list[ConfigTable], ref: ReferenceConfig, cam: 
                 raise ConfigError(f"{t.where}.points: in a cell of [[parts]] each part says which of its holes a "
                                   f"pose sees: [[parts]] measuring_poses = {{ {name} = [\"P1\"] }}")
             T_cf_si, T_b_f = _camera_pose(t, ref, cam)
+            marks = t.texts("marks", ())
             t.done()
-            poses.append(MeasuringPose(name, T_cf_si, (), T_b_f, i + 1))
+            poses.append(MeasuringPose(name, T_cf_si, (), T_b_f, i + 1, marks))
             continue
         points = t.ints("points", None, tuple(range(n_points)))
         if not points:
@@ -96,8 +103,9 @@ def read_measuring_poses(entries: list[ConfigTable], ref: ReferenceConfig, cam: 
         if twice := sorted({p for p in points if points.count(p) > 1}):
             raise ConfigError(f"{t.where}.points = {list(points)}: {twice} listed twice (one image of a hole per view)")
         T_cf_si, T_b_f = _camera_pose(t, ref, cam)
+        marks = t.texts("marks", ())
         t.done()
-        poses.append(MeasuringPose(name, T_cf_si, points, T_b_f, i + 1))
+        poses.append(MeasuringPose(name, T_cf_si, points, T_b_f, i + 1, marks))
     return tuple(poses)
 
 

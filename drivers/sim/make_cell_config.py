@@ -1,7 +1,7 @@
 """Write ``config/sim-cell.toml``, the simulated paper roof cell (and its second part type, a hood), with explicit
 matrices.
 
-``python -m monoguide.drivers.sim.make_cell_config [OUT.toml]`` (stdout without an argument).
+``python -m monoguide.drivers.sim.make_cell_config [--marks] [OUT.toml]`` (stdout without an argument).
 The cell is the paper's (Sec. 5.1-5.2): Table 1 points, Table 2 intrinsics, the calibrated ``T_cf_w0``
 and ``T_b_cf``. The four measuring poses are planned, not copied: ``solver.planning.plan_layout`` for
 the constraints of the file's ``[layout]`` (:data:`LAYOUT`) over the paper's deviation envelope, +-50 mm
@@ -16,6 +16,11 @@ where the roof lies (its holes' centroid on the roof's), seen from 650 mm, 25 de
 poses with 2 holes each (:func:`hood_poses`), so that the cell also exercises views of several holes. They are not
 planned (the planner plans one hole per view) but assessed (``assess_layout``) over the same envelope and
 constraints.
+
+``--marks`` writes the same cell with fixed reference marks (``config/sim-cell-marks.toml``): :data:`MARKS_PER_VIEW`
+dark circles of :data:`MARK_DIAMETER_MM` on the fixture :data:`MARK_BELOW_MM` under the part's plane, about
+:data:`MARK_DISTANCE_MM` from each view's hole(s) on the side away from the part (``solver.marks_layout.place_marks``),
+twice the holes' diameter so that the hole finder never takes one for the other.
 """
 
 from __future__ import annotations
@@ -32,7 +37,8 @@ from monoguide.drivers.sim.hole_renderer import defocus_for_depth_of_field
 from monoguide.drivers.toml_format import commented, inline_table, matrix, number, numbers
 from monoguide.solver.calibration.target import default_target_marks
 from monoguide.solver.camera import PAPER_CAMERA
-from monoguide.solver.frames import compose, invert, make_T, orthonormalize, rotvec_to_matrix
+from monoguide.solver.frames import compose, invert, make_T, orthonormalize, rotvec_to_matrix, transform_points
+from monoguide.solver.marks_layout import MarkLayout, place_marks
 from monoguide.solver.planning import (
     DeviationEnvelope,
     LayoutAssessment,
@@ -73,6 +79,13 @@ HOOD_STANDOFF_MM = 650.0
 HOOD_TILT_DEG = 25.0  # off the hood's normal, like the roof's views (a target seen square on calibrates badly)
 HOOD_HOLE_RADIUS_MM = 4.0
 POINTS_W = np.array([[0.0, 0.0, 0.0], [1218.078, 0.0, 0.0], [1218.028, 2058.764, 0.0], [-1.017, 2059.039, -2.677]])
+# the parts' outer edges in their frames: the roof's holes sit 40 mm in from its edges, the hood is 1.5 m x 1.0 m
+ROOF_OUTLINE_W = np.array([[-40.0, -40.0, 0.0], [1258.0, -40.0, 0.0], [1258.0, 2099.0, 0.0], [-40.0, 2099.0, 0.0]])
+HOOD_OUTLINE_W = np.array([[0.0, 0.0, 0.0], [1500.0, 0.0, 0.0], [1500.0, 1000.0, 0.0], [0.0, 1000.0, 0.0]])
+MARKS_PER_VIEW = 3
+MARK_DIAMETER_MM = 20.0
+MARK_DISTANCE_MM = 200.0
+MARK_BELOW_MM = 10.0
 T_CF_W0_PAPER = np.array([
     [-0.9998, -0.0131, -0.0120, -1381.259],
     [0.0129, -0.9999, 0.0085, -152.268],
@@ -164,8 +177,22 @@ def _target_poses(T_cf_w0: np.ndarray, T_cf_s: list[np.ndarray], depths: np.ndar
             for T, depth in zip(T_cf_s, depths, strict=True)]
 
 
-def cell_config_toml() -> str:
-    """The text of ``config/sim-cell.toml``."""
+def cell_marks(m: dict[str, object], hood: dict[str, object]) -> tuple[MarkLayout, MarkLayout]:
+    """The fixed marks of the roof's views and of the hood's (``[[reference_marks]]``), each view's about its
+    hole(s) as the reference part lies."""
+    out = []
+    for T_cf_w0, T_cf_s, points, views, first in (
+            (m["T_cf_w0"], m["T_cf_s"], POINTS_W, tuple((i,) for i in range(len(POINTS_W))), 1),
+            (hood["T_cf_w0"], hood["T_cf_s"], HOOD_POINTS_W, HOOD_VIEWS, len(POINTS_W) + 1)):
+        holes_cf = np.array([transform_points(T_cf_w0, points[list(v)]).mean(axis=0) for v in views])
+        out.append(place_marks(PAPER_CAMERA, T_cf_s, holes_cf, count=MARKS_PER_VIEW, distance_mm=MARK_DISTANCE_MM,
+                               below_mm=MARK_BELOW_MM, normal_cf=T_cf_w0[:3, 2],
+                               view_names=[f"S{first + k}" for k in range(len(views))]))
+    return out[0], out[1]
+
+
+def cell_config_toml(marks: bool = False) -> str:
+    """The text of ``config/sim-cell.toml`` (``marks``: of ``config/sim-cell-marks.toml``)."""
     m = paper_cell_poses()
     hood = hood_poses(m["T_cf_w0"])
     hood_plan: LayoutAssessment = hood["plan"]
@@ -186,11 +213,15 @@ def cell_config_toml() -> str:
         f"Job 2, the hood: 3 poses of 2 holes each (assessed, not planned), predicted sigma "
         f"{hood_plan.sigmas_with_repeatability.sigma_trans_mm:.3f} mm at the grasp point",
         f"with the repeatability; every hole >= {hood_plan.margin_px_min:.0f} px inside the image.",
+        *(["With 3 fixed reference marks per measuring pose, 20 mm dark circles on the fixture about 200 mm from",
+            "its hole(s), surveyed by the tracker ([[reference_marks]], docs/cycle-marks.md):",
+            "  python -m monoguide.drivers.sim.make_cell_config --marks config/sim-cell-marks.toml"] if marks else []),
         "Edit the generator, not this file.",
     ):
         doc.add(tomlkit.comment(line))
     doc.add(tomlkit.nl())
-    doc["cell"] = _table({"name": "paper roof cell (simulated)"})
+    doc["cell"] = _table({"name": "paper roof cell with reference marks (simulated)" if marks
+                          else "paper roof cell (simulated)"})
     camera = _table({"backend": "sim", "pixel_format": "Mono8", "exposure_us": 8000.0, "grab_timeout_s": 2.0,
                      "T_f_c": matrix(T_F_C_SIM)})
     camera["intrinsics"] = _table(PAPER_CAMERA.as_dict(), "Table 2")
@@ -198,22 +229,32 @@ def cell_config_toml() -> str:
     doc["reference"] = _table({"T_cf_b": matrix(m["T_cf_b"])},
                               "inv(T_b_cf) of Sec. 5.2 (R[1, 1] sign-corrected), orthonormalised: the robot base")
     doc["layout"] = _layout_table()
+    layouts = cell_marks(m, hood) if marks else None
+    if layouts is not None:
+        reference_marks = tomlkit.aot()
+        for layout in layouts:
+            for mark in layout.marks:
+                reference_marks.append(_table({"name": mark.name, "position_cf": numbers(mark.position_cf, 3),
+                                               "diameter_mm": MARK_DIAMETER_MM,
+                                               "normal_cf": numbers(m["T_cf_w0"][:3, 2], 6)}))
+        doc["reference_marks"] = reference_marks
     poses = tomlkit.aot()
     for i, T in enumerate(m["T_cf_s"]):
         u, v = plan.pixels[i]
         name = commented(tomlkit.item(f"S{i + 1}"), f"roof {POINT_NAMES[i]} at {plan.standoff_mm[i]:.1f} mm, line of "
                          f"sight {plan.view_angle_deg[i]:.1f} deg off the normal, imaged at ({u:.1f}, {v:.1f}) px")
-        poses.append(_table({"name": name, "T_cf_si": matrix(T)}))
+        poses.append(_table({"name": name, "T_cf_si": matrix(T), **_pose_marks(layouts, 0, i)}))
     for k, T in enumerate(hood["T_cf_s"]):
         holes = " and ".join(HOOD_POINT_NAMES[j] for j in HOOD_VIEWS[k])
         note = f"hood {holes}, from {HOOD_STANDOFF_MM:g} mm, {HOOD_TILT_DEG:g} deg off its normal"
         poses.append(_table({"name": commented(tomlkit.item(f"S{len(m['T_cf_s']) + k + 1}"), note),
-                             "T_cf_si": matrix(T)}))
+                             "T_cf_si": matrix(T), **_pose_marks(layouts, 1, k)}))
     doc["measuring_poses"] = poses
     parts = tomlkit.aot()
     parts.append(_table({
         "job": 1, "name": "roof", "hole_radius_mm": 5.0, "point_names": list(POINT_NAMES),
         "points_w": commented(matrix(POINTS_W, 6, multiline=False), "Table 1, the roof's featured holes in WF"),
+        "outline_w": commented(matrix(ROOF_OUTLINE_W, 1, multiline=False), "its outer edge"),
         "T_cf_w0": commented(matrix(m["T_cf_w0"]), "T_cf_w0 of Sec. 5.2, orthonormalised"),
         "measuring_poses": inline_table({f"S{i + 1}": [POINT_NAMES[i]] for i in range(len(m["T_cf_s"]))}),
     }))
@@ -221,6 +262,7 @@ def cell_config_toml() -> str:
     parts.append(_table({
         "job": 2, "name": "hood", "hole_radius_mm": HOOD_HOLE_RADIUS_MM, "point_names": list(HOOD_POINT_NAMES),
         "points_w": matrix(HOOD_POINTS_W, 1, multiline=False),
+        "outline_w": matrix(HOOD_OUTLINE_W, 1, multiline=False),
         "T_cf_w0": commented(matrix(hood["T_cf_w0"]), "its holes' centroid where the roof's is"),
         "measuring_poses": inline_table({f"S{first_hood + k}": [HOOD_POINT_NAMES[j] for j in pair]
                                          for k, pair in enumerate(HOOD_VIEWS)}),
@@ -268,8 +310,10 @@ def cell_config_toml() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    text = cell_config_toml()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    marks = "--marks" in argv
+    argv = [a for a in argv if a != "--marks"]
+    text = cell_config_toml(marks)
     if argv:
         write_atomic(Path(argv[0]), text)
     else:
@@ -278,6 +322,14 @@ def main(argv: list[str] | None = None) -> int:
 
 
 # --- private -----------------------------------------------------------------------------------
+
+
+def _pose_marks(layouts: tuple[MarkLayout, MarkLayout] | None, part: int, view: int) -> dict[str, object]:
+    """``marks = [...]`` of a measuring pose (nothing without marks)."""
+    if layouts is None:
+        return {}
+    layout = layouts[part]
+    return {"marks": [layout.marks[j].name for j in layout.marks_per_view[view]]}
 
 
 def _exact(T: np.ndarray) -> np.ndarray:
