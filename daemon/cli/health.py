@@ -4,11 +4,14 @@ Read-only, from the state directory: the trend monitors and the latch the servic
 (``calibration-health.json``: each part type's CUSUM against its warning and alarm levels, the cycles since the
 calibration) and the journal's recent cycles (each solved cycle's whitened residual per view, normalised by its
 degrees of freedom: 1 is what the noise model predicts). Per part type and view: the recent mean and its trend
-(the least-squares slope per 100 cycles); with ``--config``, the calibration's date and the days since.
-``--out health.png`` draws the normalised residual over the recent cycles, ``--json`` prints one object.
+(the least-squares slope per 100 cycles); with ``--config``, the calibration's date and the days since. With
+reference marks (docs/cycle-marks.md), per view the camera's deviation from its calibrated pose over the recent
+cycles: its scatter (the robot's repeatability), its mean and its drift per 1,000 cycles against the tolerance, and
+a verdict (``_health_marks``, ``solver.trend_pose``). ``--out health.png`` draws the normalised residual (and the
+camera's deviation) over the recent cycles, ``--json`` prints one object.
 
-Exit status: 0 healthy, 1 a warning or a latched alarm (``CALIBRATION_SUSPECT``), 2 bad options, no state
-directory or an unreadable journal.
+Exit status: 0 healthy, 1 a warning, a latched alarm (``CALIBRATION_SUSPECT``) or a camera drifting or beyond its
+tolerance, 2 bad options, no state directory or an unreadable journal.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from typing import Annotated, Any
 import numpy as np
 import typer
 
+from monoguide.daemon.cli import _health_marks
 from monoguide.daemon.cli._console import stdout_console
 from monoguide.daemon.cli._policy import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail
 from monoguide.daemon.cli.journal import open_journal
@@ -39,12 +43,14 @@ def health(
     config: Annotated[Path | None, typer.Option("--config", "-c", help="the cell config: the calibration's date")
                       ] = None,
     last: Annotated[int, typer.Option("--last", min=2, help="the recent cycles the means and trends are of")] = 200,
-    out: Annotated[Path | None, typer.Option("--out", help="draw the recent residuals into this PNG")] = None,
+    out: Annotated[Path | None, typer.Option("--out", help="draw the recent residuals (and the camera's "
+                                             "deviations) into this PNG")] = None,
     json_out: Annotated[bool, typer.Option("--json", help="one JSON object on standard output")] = False,
     clear: Annotated[str | None, typer.Option("--clear", help="REASON: after inspecting the cell, clear a latched "
                                               "CALIBRATION_SUSPECT and restart the trend monitors (logged)")] = None,
 ) -> None:
-    """The calibration's health: the trend monitors, their levels, the residual per view and its trend."""
+    """The calibration's health: the trend monitors, their levels, the residual per view and its trend; with marks, the
+    camera's deviation per view (its scatter, its drift)."""
     try:
         directory = existing_state_dir(state_dir)
         if clear is not None:
@@ -67,11 +73,14 @@ def health(
         sys.stdout.write(json.dumps(report) + "\n")
     else:
         _print(report)
-    raise typer.Exit(EXIT_FAILED if report["latched"] or report["warning"] else EXIT_OK)
+    camera = report["camera_deviation"]
+    raise typer.Exit(EXIT_FAILED if report["latched"] or report["warning"] or (camera and camera["warning"])
+                     else EXIT_OK)
 
 
 def gather(directory: Path, last: int, config: Path | None = None) -> dict[str, Any]:
-    """The report: the monitors (from the service's file), per part type and view the recent residual."""
+    """The report: the monitors (from the service's file), per part type and view the recent residual, per view the
+    camera's deviation (``camera_deviation``: None without marks)."""
     kept = _read_health(directory / HEALTH_FILE)
     rows = []
     try:
@@ -107,8 +116,12 @@ def gather(directory: Path, last: int, config: Path | None = None) -> dict[str, 
                             "views": [_mean_and_trend(cycles, views[:, v]) for v in range(views.shape[1])]
                             if views.size else [], "per_view": views.tolist()}
     out["warning"] = bool(out["latched"]) or any(m["warning"] or m["alarm"] for m in out["monitors"].values())
+    out["cycles_in_window"] = len(rows)
+    out["camera_deviation"] = _health_marks.summarise(rows, last)
     if config is not None:
-        date = (load_cell_config(config).calibration or {}).get("date")
+        cell = load_cell_config(config)
+        out["reference_marks"] = len(cell.reference_marks)
+        date = (cell.calibration or {}).get("date")
         out["calibration_date"] = date
         out["days_since_calibration"] = (None if date is None else
                                          (datetime.now(UTC) - datetime.fromisoformat(date)).total_seconds() / 86400)
@@ -154,5 +167,7 @@ def _print(report: dict[str, Any]) -> None:
             trend = view["trend_per_100_cycles"]
             lines.append(f"    view {v + 1}: mean {view['mean']:.2f}"
                          + ("" if trend is None else f", trend {trend:+.3f} per 100 cycles"))
+    lines += _health_marks.lines(report["camera_deviation"], journal_empty=not report["cycles_in_window"],
+                                 configured_marks=report.get("reference_marks"))
     for line in lines:
         out.print(line, markup=False, highlight=False, soft_wrap=True)

@@ -35,6 +35,7 @@ def test_an_empty_state_directory_is_healthy_and_says_so(tmp_path: Path) -> None
     assert run.returncode == 0, run.stderr
     report = json.loads(run.stdout)
     assert report["latched"] is None and report["monitors"] == {} and report["jobs"] == {}
+    assert report["camera_deviation"] is None  # no marks, no cycle (tests/daemon/cli/test_health_marks.py)
     text = _health("--state-dir", str(tmp_path), "--out", str(tmp_path / "health.png"))
     assert "no trend monitor yet" in text.stdout and (tmp_path / "health.png").stat().st_size > 1000
     missing = _health("--state-dir", str(tmp_path / "nowhere"))
