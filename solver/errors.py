@@ -185,6 +185,14 @@ class BadImage(FeatureNotFound):
     plc_code = 306
 
 
+class MarkNotFound(FeatureNotFound):
+    """A fixed reference mark a measuring pose should see was not found where the calibration puts it: hidden (a
+    part out of place, a cable, dirt), damaged, or the camera no longer where it was calibrated."""
+
+    code = "MARK_NOT_FOUND"
+    plc_code = 307
+
+
 # --- offset checks (5xx) ------------------------------------------------------------------------
 
 

@@ -114,12 +114,21 @@ class MarksProblem:
         set_(self, "checked", checked)
 
     def prior_factor(self) -> np.ndarray:
-        """F (6, 6) with ``F F^T`` the prior covariance of a camera correction ``e = (w rad, d mm)``: the
-        repeatability (at the flange when ``holes.T_f_c`` is given, :func:`solver.uncertainty.view_motion_factor`)
-        plus the calibration's own sigma per camera axis."""
+        """F (6, 6) with ``F F^T`` the prior covariance of a camera correction ``e = (w rad, d mm)``
+        (:func:`camera_prior_factor` of the repeatability and the calibration's sigma)."""
         h = self.holes
-        F = np.diag([math.radians(h.view_sigma_deg)] * 3 + [h.view_sigma_mm] * 3)
-        if h.T_f_c is not None:
-            F = adjoint(frames.invert(h.T_f_c)) @ F
-        cal = np.diag([math.radians(self.calibration_sigma_deg) ** 2] * 3 + [self.calibration_sigma_mm**2] * 3)
-        return np.linalg.cholesky(F @ F.T + cal)
+        return camera_prior_factor(h.view_sigma_mm, h.view_sigma_deg, h.T_f_c, self.calibration_sigma_mm,
+                                   self.calibration_sigma_deg)
+
+
+def camera_prior_factor(view_sigma_mm: float, view_sigma_deg: float, T_f_c: np.ndarray | None,
+                        calibration_sigma_mm: float = CALIBRATION_SIGMA_MM,
+                        calibration_sigma_deg: float = CALIBRATION_SIGMA_DEG) -> np.ndarray:
+    """F (6, 6) with ``F F^T`` the prior covariance of a camera correction ``e = (w rad, d mm)``: the
+    repeatability (at the flange when ``T_f_c`` is given, :func:`solver.uncertainty.view_motion_factor`)
+    plus the calibration's own sigma per camera axis."""
+    F = np.diag([math.radians(view_sigma_deg)] * 3 + [view_sigma_mm] * 3)
+    if T_f_c is not None:
+        F = adjoint(frames.invert(T_f_c)) @ F
+    cal = np.diag([math.radians(calibration_sigma_deg) ** 2] * 3 + [calibration_sigma_mm**2] * 3)
+    return np.linalg.cholesky(F @ F.T + cal)

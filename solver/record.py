@@ -26,16 +26,18 @@ from monoguide.solver.errors import (
 from monoguide.solver.offset import PartDisplacement, check_envelope, describe_displacement
 from monoguide.solver.pose import DEFAULT_FALSE_ALARM_RATE, PoseResult, solve_pose
 from monoguide.solver.problem import PoseProblem
+from monoguide.solver.record_marks import MARKS_KEYS, RecordMarks, camera_deviation, parse_marks, solve_record_marks
 
 FORMAT = "monoguide.measurement/1"
 
 # Every key the format defines, per object; anything else is refused with the closest known key.
 REQUIRED_KEYS = ("format", "camera", "points_w", "views", "T_s1_w0", "observations")
-OPTIONAL_KEYS = ("id", "job", "part", "sigma_px", "view_sigma", "T_b_s1", "grasp_point_w", "envelope", "truth")
+OPTIONAL_KEYS = ("id", "job", "part", "sigma_px", "view_sigma", "T_b_s1", "grasp_point_w", "envelope", "truth",
+                 *MARKS_KEYS)
 MAX_JOB = 65535  # the PLC's job number (register 1), a uint16
 # The spec's default centre noise, px: the covariance and the consistency test use it when a record has none.
 DEFAULT_SIGMA_PX = 0.1
-VIEW_KEYS = ("T_s1_si",)
+VIEW_KEYS, VIEW_OPTIONAL_KEYS = ("T_s1_si",), ("name",)
 OBSERVATION_KEYS = ("view", "point", "pixel")
 VIEW_SIGMA_KEYS = ("mm", "deg")
 ENVELOPE_KEYS, ENVELOPE_OPTIONAL_KEYS = ("translation_mm", "rotation_deg"), ("about_w", "total_mm", "total_deg")
@@ -60,6 +62,8 @@ class MeasurementRecord:
     T_b_s1: np.ndarray | None = None
     truth_T_s1_w: np.ndarray | None = None
     truth_base_offset: np.ndarray | None = None
+    marks: RecordMarks | None = None  # the fixed reference marks and their sightings (solver/record_marks.py)
+    view_names: tuple[str, ...] = ()  # views[i].name, or S1, S2, ...
 
     def displacement(self, T_s1_w: np.ndarray) -> PartDisplacement:
         """How the part at ``T_s1_w`` lies off the reference: at this record's grasp point, and about its
@@ -99,7 +103,13 @@ def solve_record(data: Any, method: str = "ml", *, robust: bool = False,
         try:
             record = parse_record(data, T_f_c)
             start = time.perf_counter()
-            result = solve_pose(record.problem, method, robust=robust, false_alarm_rate=false_alarm_rate)
+            deviation = None
+            if record.marks is not None and method == "ml" and not robust:
+                result, fit = solve_record_marks(record.problem, record.marks,
+                                                 consistency_false_alarm_rate=false_alarm_rate)
+                deviation = camera_deviation(fit)
+            else:
+                result = solve_pose(record.problem, method, robust=robust, false_alarm_rate=false_alarm_rate)
             elapsed_ms = (time.perf_counter() - start) * 1e3
             check_envelope(record.displacement(result.T_s1_w), record.envelope)
         except RecursionError:  # a record nested too deep for Python, caught while reporting on it
@@ -111,7 +121,10 @@ def solve_record(data: Any, method: str = "ml", *, robust: bool = False,
         grasp = record.grasp_point_w[None, :]
         moved = frames.transform_points(result.T_s1_w, grasp) - frames.transform_points(record.truth_T_s1_w, grasp)
         truth_error = (frames.pose_difference(result.T_s1_w, record.truth_T_s1_w)[0], float(np.linalg.norm(moved)))
-    return result_to_dict(record, result, elapsed_ms), truth_error
+    out = result_to_dict(record, result, elapsed_ms)
+    if deviation is not None:
+        out["camera_deviation"] = deviation
+    return out, truth_error
 
 
 def _parse_record(data: Any) -> MeasurementRecord:
@@ -134,7 +147,10 @@ def _parse_record(data: Any) -> MeasurementRecord:
     if not isinstance(views, list) or not views:
         raise RecordError(f"views: expected a non-empty list, got {views!r}"[:200])
     for i, view in enumerate(views):
-        _check_keys(view, VIEW_KEYS, (), f"views[{i}]")
+        _check_keys(view, VIEW_KEYS, VIEW_OPTIONAL_KEYS, f"views[{i}]")
+        if view.get("name") is not None and (not isinstance(view["name"], str) or not view["name"].strip()):
+            raise RecordError(f"views[{i}].name: expected a non-empty string, got {view['name']!r}"[:200])
+    view_names = tuple(view.get("name") or f"S{i + 1}" for i, view in enumerate(views))
     T_s1_si = np.stack([_transform(view["T_s1_si"], f"views[{i}].T_s1_si") for i, view in enumerate(views)])
     if not np.allclose(T_s1_si[0], np.eye(4), atol=1e-6):
         raise RecordError("views[0].T_s1_si: must be the identity (SF1 is the frame of the first camera pose)")
@@ -174,7 +190,9 @@ def _parse_record(data: Any) -> MeasurementRecord:
         if data["truth"].get("base_offset") is not None:
             truth_base_offset = _transform(data["truth"]["base_offset"], "truth.base_offset")
     envelope = _envelope(data.get("envelope"), grasp_point_w).at(points_w)
-    return MeasurementRecord(record_id, problem, grasp_point_w, envelope, T_b_s1, truth_T_s1_w, truth_base_offset)
+    marks = parse_marks(data, len(views), view_names)
+    return MeasurementRecord(record_id, problem, grasp_point_w, envelope, T_b_s1, truth_T_s1_w, truth_base_offset,
+                             marks, view_names)
 
 
 def result_to_dict(record: MeasurementRecord, result: PoseResult, time_ms: float) -> dict:

@@ -2,7 +2,8 @@
 
 What PLC job 65535 does inside the service (docs/plc-interface.md, "The check job"; ``daemon.cycle._check``), for
 a person at the cell: put the first part type's reference part in its nest as taught, run the command; the robot
-visits that part type's measuring poses, the camera measures the part, and it is compared with the calibration.
+visits that part type's measuring poses, the camera measures the part (in a cell with reference marks: the marks
+alone, no part needed), and it is compared with the calibration.
 Nothing is written to the robot. The check is journaled in the state directory as a cycle of job 65535; a pass
 clears a latched ``CALIBRATION_SUSPECT``, a failure latches it (``calibration-health.json``), as the service's own
 check does. The service must not run meanwhile (it holds the devices and the journal): the state directory's lock
@@ -76,7 +77,8 @@ def _run(cfg: CellConfig, directory: Path, json_out: bool) -> int:
             with CycleRunner(first, camera, robot) as runner:
                 say(out, f"check: the reference part of job {first.job} ({first.part_name}), "
                                       f"{len(first.measuring_poses)} measuring poses")
-                measurement = runner.measure(first.job, threading.Event(), lambda: CycleAborted("check aborted"))
+                measurement = runner.measure(first.job, threading.Event(), lambda: CycleAborted("check aborted"),
+                                             holes=not runner.has_marks)
                 solution, found = solve_and_check(runner, measurement)
         except MonoguideError as exc:
             error = exc
@@ -90,8 +92,7 @@ def _run(cfg: CellConfig, directory: Path, json_out: bool) -> int:
     if isinstance(error, CalibrationSuspect):
         health.latch(error, number, at, CHECK_JOB)
     elif error is None and found is not None:
-        health.clear(f"a passing check (monoguide check, cycle {number}: the reference part within "
-                     f"{found['shift_mm']:.3f} mm / {found['rotation_deg']:.4f} deg of its calibration)")
+        health.clear(f"a passing check (monoguide check, cycle {number}: {found['summary']})")
     if json_out:
         sys.stdout.write(json.dumps({"cycle": number, "passed": error is None, "check": found,
                                      "error": None if error is None else error.as_dict()}) + "\n")
@@ -99,8 +100,9 @@ def _run(cfg: CellConfig, directory: Path, json_out: bool) -> int:
         report(error, "check failed")
         return exit_status(error)
     assert found is not None
-    say(out, f"check passed (cycle {number}): the reference part within {found['shift_mm']:.3f} mm / "
-                          f"{found['rotation_deg']:.4f} deg of its calibration (limits {found['limit_mm']:.3f} mm / "
-                          f"{found['limit_deg']:.4f} deg); views: "
-        + ", ".join(f"{name} {v['px']:.2f} px" for name, v in found["views"].items()))
+    if found["method"] == "marks":
+        views = ", ".join(f"{name} {v['mm']:.3f} mm / {v['deg']:.4f} deg" for name, v in found["views"].items())
+    else:
+        views = ", ".join(f"{name} {v['px']:.2f} px" for name, v in found["views"].items())
+    say(out, f"check passed (cycle {number}): {found['summary']}; views: {views}")
     return EXIT_OK

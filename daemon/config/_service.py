@@ -40,6 +40,7 @@ class ChecksConfig:
     max_sigma_mm: float = 0.5  # predicted sigma of the grasp point above this: UNCERTAINTY_TOO_LARGE
     max_sigma_deg: float = 0.1  # predicted sigma of the rotation above this: UNCERTAINTY_TOO_LARGE
     false_alarm_rate: float = 1e-3  # the consistency test's (INCONSISTENT_MEASUREMENT)
+    marks_false_alarm_rate: float = 1e-4  # the reference marks' tolerance, per cycle (CALIBRATION_SUSPECT)
     envelope_mm: float | None = None  # the grasp point's shift in total, mm
     envelope_deg: float | None = None  # the rotation angle, deg
     envelope_axis_mm: tuple[float, float, float] | None = None  # per axis of the reference part frame
@@ -64,11 +65,15 @@ def read_checks(t: ConfigTable) -> ChecksConfig:
     rate = t.number("false_alarm_rate", 1e-3, positive=True)
     if rate >= 1.0:
         raise ConfigError(f"{t.where}.false_alarm_rate = {rate}: must lie between 0 and 1")
+    marks_rate = t.number("marks_false_alarm_rate", 1e-4, positive=True)
+    if marks_rate >= 1.0:
+        raise ConfigError(f"{t.where}.marks_false_alarm_rate = {marks_rate}: must lie between 0 and 1")
     out = ChecksConfig(
         max_rms_px=t.number("max_rms_px", 1.0, positive=True),
         max_sigma_mm=t.number("max_sigma_mm", 0.5, positive=True),
         max_sigma_deg=t.number("max_sigma_deg", 0.1, positive=True),
         false_alarm_rate=rate,
+        marks_false_alarm_rate=marks_rate,
         envelope_mm=t.number("envelope_mm", None, positive=True),
         envelope_deg=t.number("envelope_deg", None, positive=True),
         envelope_axis_mm=None if axis_mm is None else tuple(float(v) for v in axis_mm),

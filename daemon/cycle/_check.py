@@ -1,5 +1,7 @@
 """The check job (PLC job 65535): the reference part, lying as taught, measured as a part is, and compared with the
-calibration (docs/health.md, "The check job").
+calibration (docs/health.md, "The check job"); in a cell whose measuring poses all see fixed reference marks, the
+marks alone, no part needed (:func:`marks_check`, ``solver/marks_camera.py``): each view's camera against its
+calibrated pose.
 
 Nothing is written to the robot. The check passes when the solved part lies within ``CHECK_SIGMAS`` of its
 predicted σ of the reference (at the grasp point, and its rotation) — with a calibration that still fits, the
@@ -19,7 +21,10 @@ import numpy as np
 
 from monoguide.daemon.cycle._record import Measurement, Solution
 from monoguide.solver.errors import CalibrationSuspect, InconsistentMeasurement
+from monoguide.solver.marks_camera import check_cameras
+from monoguide.solver.marks_problem import camera_prior_factor
 from monoguide.solver.problem import reprojection
+from monoguide.solver.record_marks import parse_marks
 
 CHECK_SIGMAS = 3.5
 
@@ -58,7 +63,9 @@ def reference_check(measurement: Measurement, solution: Solution, view_names: tu
     limit_mm, limit_deg = CHECK_SIGMAS * sigma_mm, CHECK_SIGMAS * sigma_deg
     found = {"shift_mm": round(shift_mm, 4), "rotation_deg": round(rotation_deg, 5), "limit_mm": round(limit_mm, 4),
              "limit_deg": round(limit_deg, 5), "views": views, "passed": shift_mm <= limit_mm and
-             rotation_deg <= limit_deg}
+             rotation_deg <= limit_deg, "method": "reference part",
+             "summary": f"the reference part within {shift_mm:.3f} mm / {rotation_deg:.4f} deg of its calibration "
+                        f"(limits {limit_mm:.3f} mm / {limit_deg:.4f} deg)"}
     if not found["passed"]:
         raise CalibrationSuspect(
             f"check job: the reference part was measured {shift_mm:.3f} mm / {rotation_deg:.4f} deg from where it was "
@@ -70,6 +77,8 @@ def reference_check(measurement: Measurement, solution: Solution, view_names: tu
 def solve_and_check(runner: Any, measurement: Measurement) -> tuple[Solution, dict[str, Any]]:
     """The check's solve (``runner.solve``) and :func:`reference_check`: the solution and the findings, or
     :class:`CalibrationSuspect` (a reference part that does not even fit the calibration names every view too)."""
+    if measurement.parsed is None:  # the marks alone
+        return marks_check(runner, measurement)
     names = tuple(p.name for p in runner.config.measuring_poses)
     try:
         solution = runner.solve(measurement)
@@ -78,4 +87,46 @@ def solve_and_check(runner: Any, measurement: Measurement) -> tuple[Solution, di
                                  + describe_views(view_offsets(measurement, names))) from exc
     found = reference_check(measurement, solution, names)
     solution.result["check"] = found
+    return solution, found
+
+
+def marks_check(runner: Any, measurement: Measurement) -> tuple[Solution, dict[str, Any]]:
+    """The check of a cell with marks: every view's camera, from its marks alone, against its calibrated pose
+    (:func:`solver.marks_camera.check_cameras`, one false failure per 1,000 good checks); the solution (nothing to
+    write: a zero offset) and the findings, or :class:`CalibrationSuspect` naming the views and their deviations."""
+    record = measurement.record
+    names = tuple(view["name"] for view in record["views"])
+    marks = parse_marks(record, len(names), names)
+    assert marks is not None, "a check of marks alone measured no marks"
+    sigma = record.get("view_sigma") or {"mm": 0.0, "deg": 0.0}
+    prior = camera_prior_factor(sigma["mm"], sigma["deg"], runner.config.camera.T_f_c, marks.calibration_sigma_mm,
+                                marks.calibration_sigma_deg)
+    checked = check_cameras(runner.config.camera.intrinsics, [np.array(v["T_s1_si"]) for v in record["views"]],
+                            marks.marks, marks.mark_view, marks.mark_index, marks.mark_pixels, names, prior,
+                            float(record["sigma_px"]))
+    worst = max(checked.views, key=lambda c: c.statistic / c.threshold)
+    found: dict[str, Any] = {
+        "method": "marks", "passed": checked.passed, "views": {c.view: c.as_dict() for c in checked.views},
+        "statistic": round(checked.statistic, 3), "dof": checked.dof, "threshold": round(checked.threshold, 3),
+        "common_mm": round(checked.common_mm, 5), "common_deg": round(checked.common_deg, 6),
+        "summary": f"every camera where it was calibrated (the farthest: view {worst.view}, {worst.mm:.3f} mm / "
+                   f"{worst.deg:.4f} deg)"}
+    if not checked.passed:
+        failed = [c for c in checked.views if not c.passed]
+        if failed:
+            text = "; ".join(f"view {c.view}: its camera stood {c.mm:.3f} mm / {c.deg:.4f} deg from its calibrated "
+                             f"pose (its {c.marks} marks: chi-square {c.statistic:.1f} > {c.threshold:.1f} on {c.dof})"
+                             for c in failed)
+        else:
+            text = (f"the cameras of every view moved together by {checked.common_mm:.3f} mm / "
+                    f"{checked.common_deg:.4f} deg in their axes, as a camera knocked on its bracket does (chi-square "
+                    f"{checked.statistic:.1f} > {checked.threshold:.1f} on {checked.dof}; no view alone beyond its "
+                    "own tolerance)")
+        raise CalibrationSuspect(f"check job (reference marks): {text}; the camera moved on its bracket, the lens "
+                                 "changed or the measuring pose is not where it was calibrated: recalibrate")
+    solution = Solution(
+        result={"status": "ok", "check": found, "camera_deviation": [
+            {**c.as_dict(), "checked": True} for c in checked.views]},
+        D_b=np.eye(4), offset=(0.0, 0.0, 0.0, 0.0, 0.0, 0.0), quality=(0.0, 0.0, 0.0),
+        timings_s=measurement.timings_s, last_frame_at=measurement.last_frame_at, images=measurement.images)
     return solution, found

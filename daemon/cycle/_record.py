@@ -20,6 +20,7 @@ from monoguide.daemon.config import CellConfig, ChecksConfig
 from monoguide.daemon.cycle._residual import Residual
 from monoguide.solver import frames
 from monoguide.solver.holes import perspective_correction
+from monoguide.solver.marks_problem import CALIBRATION_SIGMA_DEG, CALIBRATION_SIGMA_MM
 from monoguide.solver.offset import PartDisplacement
 from monoguide.solver.record import DEFAULT_SIGMA_PX, FORMAT, MeasurementRecord, envelope_to_record, parse_record
 
@@ -34,6 +35,7 @@ class Capture:
     centre_px: tuple[float, float]  # the found hole centre (after perspective correction once solved)
     centres_px: tuple[tuple[float, float], ...] = ()  # every expected hole of the view (pose.points order)
     measured_px: tuple[tuple[float, float], ...] = ()  # the same as found: the imaged ellipses' centres
+    marks_px: tuple[tuple[int, tuple[float, float]], ...] = ()  # (mark, image of its centre, corrected) per mark
 
 
 @dataclass
@@ -43,7 +45,7 @@ class Measurement:
     job: int
     captures: list[Capture]
     record: dict[str, Any]  # the measurement record (docs/measurement-record.md), JSON-able
-    parsed: MeasurementRecord  # the same, typed: what the solve and the checks use
+    parsed: MeasurementRecord  # the same, typed: what the solve and the checks use (None: a check of marks alone)
     timings_s: dict[str, float]
     last_frame_at: float = 0.0  # time.monotonic() when the last frame was in hand
     images: list[Future[bool]] = field(default_factory=list)  # the PNGs being written (True: written)
@@ -77,6 +79,13 @@ class RecordBuilder:
         """The cycle's record, built and parsed once (the view sigmas at the flange with ``[camera] T_f_c``)."""
         record = self._record(job, captures)
         return Measurement(job, captures, record, parse_record(record, self.config.camera.T_f_c), timings_s,
+                           last_frame_at, images)
+
+    def marks_measurement(self, job: int, captures: list[Capture], timings_s: dict[str, float],
+                          last_frame_at: float, images: list[Future[bool]]) -> Measurement:
+        """The record of a visit that measured the marks alone (the check job with marks): no hole observations,
+        not parsed (``parsed`` None)."""
+        return Measurement(job, captures, self._record(job, captures), None, timings_s,  # type: ignore[arg-type]
                            last_frame_at, images)
 
     def correct(self, measurement: Measurement, T_s1_w: np.ndarray) -> MeasurementRecord:
@@ -122,7 +131,7 @@ class RecordBuilder:
             "camera": {k: float(v) if k not in ("width", "height") else int(v)
                        for k, v in cfg.camera.intrinsics.as_dict().items()},
             "points_w": cfg.part.points_w.tolist(),
-            "views": [{"T_s1_si": (T_s1_cf @ p.T_cf_si).tolist()} for p in cfg.measuring_poses],
+            "views": [{"T_s1_si": (T_s1_cf @ p.T_cf_si).tolist(), "name": p.name} for p in cfg.measuring_poses],
             "T_s1_w0": (T_s1_cf @ cfg.reference.T_cf_w0).tolist(),
             "sigma_px": layout.sigma_px if layout is not None else DEFAULT_SIGMA_PX,
         }
@@ -146,18 +155,37 @@ class RecordBuilder:
         observations = []
         for capture in captures:
             points = self.config.measuring_poses[capture.pose_index].points
-            for j, px in zip(points, capture.centres_px, strict=True):
+            for j, px in zip(points if capture.centres_px else (), capture.centres_px, strict=True):
                 observations.append({"view": capture.pose_index, "point": int(j), "pixel": [px[0], px[1]]})
         stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime())
         T_cf_si = self._camera_poses(captures)
         T_s1_cf = frames.invert(T_cf_si[0])
         assert self.config.reference.T_cf_b is not None
+        poses = self.config.measuring_poses
         return {**copy.deepcopy(self._template), "id": f"job{job}-{stamp}-{time.monotonic_ns() % 1_000_000:06d}",
                 "job": job, "part": self.config.part_name,
-                "views": [{"T_s1_si": (T_s1_cf @ T).tolist()} for T in T_cf_si],
+                "views": [{"T_s1_si": (T_s1_cf @ T).tolist(), "name": poses[c.pose_index].name}
+                          for T, c in zip(T_cf_si, sorted(captures, key=lambda c: c.pose_index), strict=True)],
                 "T_s1_w0": (T_s1_cf @ self.config.reference.T_cf_w0).tolist(),
                 "T_b_s1": (frames.invert(self.config.reference.T_cf_b) @ T_cf_si[0]).tolist(),
-                "observations": observations}
+                "observations": observations, **self._marks(captures, T_s1_cf)}
+
+    def _marks(self, captures: list[Capture], T_s1_cf: np.ndarray) -> dict[str, Any]:
+        """The record's marks (surveyed centres in this cycle's SF1) and their sightings; nothing in a cell whose
+        poses list no marks."""
+        seen = sorted({m for c in captures for m, _ in c.marks_px})
+        if not seen:
+            return {}
+        marks = self.config.reference_marks
+        index = {m: k for k, m in enumerate(seen)}
+        return {
+            "marks": [{"name": marks[m].name, "sigma_mm": marks[m].sigma_mm,
+                       "position_s1": frames.transform_points(T_s1_cf, marks[m].position_cf[None])[0].tolist()}
+                      for m in seen],
+            "mark_observations": [{"view": c.pose_index, "mark": index[m], "pixel": [px[0], px[1]]}
+                                  for c in captures for m, px in c.marks_px],
+            "calibration_sigma": {"mm": CALIBRATION_SIGMA_MM, "deg": CALIBRATION_SIGMA_DEG},
+        }
 
     def _camera_poses(self, captures: list[Capture]) -> list[np.ndarray]:
         """``T_cf_si`` of each capture: the calibrated camera pose moved by how far the robot's reported flange

@@ -11,7 +11,10 @@ threads and fires the state machine (``daemon/cycle/_states.py``) between them.
   record of ``docs/measurement-record.md``, built and parsed once.
 - :meth:`CycleRunner.solve`: the pose (maximum likelihood), one perspective-correction iteration (the centre of
   an imaged hole is not the image of its centre), the checked solve, the base offset ``D_b`` in the robot base
-  frame and the quality figures the PLC shows.
+  frame and the quality figures the PLC shows. With marks the checked solve is the joint fit of the part and of
+  every view's camera pose (``solver/marks_check.py``, docs/cycle-marks.md): a camera that stood elsewhere than
+  calibrated is refused with ``CALIBRATION_SUSPECT``, and each view's deviation goes into the result
+  (``camera_deviation``).
 - :meth:`CycleRunner.check`: the reprojection RMS, the predicted sigma, the offset envelope (``[checks]``).
 - :meth:`CycleRunner.write`: the offset to the robot, acknowledged by its sequence number.
 
@@ -24,6 +27,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -41,9 +45,17 @@ from monoguide.drivers.camera import Camera, CameraSettings, Frame
 from monoguide.drivers.errors import ConfigError, DeviceError
 from monoguide.drivers.robot import Robot
 from monoguide.solver import frames
-from monoguide.solver.errors import InconsistentMeasurement, MonoguideError, ResidualTooLarge, UncertaintyTooLarge
+from monoguide.solver.errors import (
+    CalibrationSuspect,
+    InconsistentMeasurement,
+    MarkNotFound,
+    MonoguideError,
+    ResidualTooLarge,
+    UncertaintyTooLarge,
+)
 from monoguide.solver.hole_edges import bit_depth_of
-from monoguide.solver.holes import measure_hole
+from monoguide.solver.holes import measure_hole, perspective_correction
+from monoguide.solver.marks_problem import MIN_MARKS_PER_VIEW
 from monoguide.solver.offset import check_envelope
 from monoguide.solver.planning import DeviationEnvelope
 from monoguide.solver.planning.prediction import pose_sigmas
@@ -51,6 +63,7 @@ from monoguide.solver.planning.search import HoleSearch, hole_search, search_ext
 from monoguide.solver.pose import solve_ml, solve_pose
 from monoguide.solver.problem import PoseProblem
 from monoguide.solver.record import result_to_dict
+from monoguide.solver.record_marks import camera_deviation, solve_record_marks
 from monoguide.solver.trend import residual_chi2, view_statistics
 
 log = logging.getLogger(__name__)
@@ -58,6 +71,10 @@ log = logging.getLogger(__name__)
 _M_MMAP_THRESHOLD, _M_ARENA_MAX = -3, -8  # glibc mallopt(3) parameters
 MMAP_THRESHOLD_BYTES = 1 << 20
 MALLOC_ARENAS = 2
+# how far from where the calibration puts it a mark is sought (px, beyond its radius): 2.4 deg or 27 mm of the
+# camera at 650 mm on the simulated roof cell's lens, so that a camera knocked that far is measured (and refused,
+# CALIBRATION_SUSPECT), not lost (MARK_NOT_FOUND)
+MARK_SEARCH_PX = 100.0
 
 
 def tune_malloc() -> bool:
@@ -83,6 +100,9 @@ class _View:
 
     points: tuple[int, ...]
     holes: tuple[HoleSearch, ...]
+    marks: tuple[int, ...] = ()  # the [[reference_marks]] it sees
+    mark_searches: tuple[HoleSearch, ...] = ()
+    mark_shifts: tuple[tuple[float, float], ...] = ()  # imaged circle's centre minus the image of the mark's centre
 
 
 class CycleRunner:
@@ -121,9 +141,12 @@ class CycleRunner:
 
     # --- the four steps ---------------------------------------------------------------------------
 
-    def measure(self, job: int, abort: threading.Event, abort_error: Callable[[], MonoguideError]) -> Measurement:
+    def measure(self, job: int, abort: threading.Event, abort_error: Callable[[], MonoguideError],
+                holes: bool = True) -> Measurement:
         """Visit every measuring pose; raise ``abort_error()`` when ``abort`` is set (checked before each
-        request and after each wait). ``job`` has been checked by the caller (the service's job rule)."""
+        request and after each wait). ``job`` has been checked by the caller (the service's job rule).
+        ``holes`` False: the marks alone (the check job of a cell with marks; no part needed), its record has no
+        hole observations and is not parsed (``Measurement.parsed`` None)."""
         timings = {"robot_motion": 0.0, "exposure": 0.0, "hole_finding": 0.0}
         with device_errors("camera"):
             self._configure_camera()
@@ -149,7 +172,8 @@ class CycleRunner:
                 path = image_path(self.images_dir, poses[i].name)
                 if path is not None:
                     images.append(self._images.submit(path, frame.image, poses[i].name))
-                futures.append(self._finder.submit(self._find, i, frame, np.array(status.T_b_f, dtype=float), path))
+                futures.append(self._finder.submit(self._find, i, frame, np.array(status.T_b_f, dtype=float), path,
+                                                   holes))
             captures = []
             for future in futures:
                 while True:  # every wait has a way out: the abort
@@ -164,7 +188,15 @@ class CycleRunner:
         finally:
             for future in futures:
                 future.cancel()  # those not started; a running one ends on its own (it only reads its frame)
+        if not holes:
+            return self.records.marks_measurement(job, captures, timings, last_frame_at, images)
         return self.records.measurement(job, captures, timings, last_frame_at, images)
+
+    @property
+    def has_marks(self) -> bool:
+        """Every measuring pose of this part type sees enough marks to measure its camera (the check job then
+        needs no part)."""
+        return all(len(view.marks) >= MIN_MARKS_PER_VIEW for view in self._views)
 
     def solve(self, measurement: Measurement) -> Solution:
         """Pose, covariance, one perspective-correction iteration; the measurement's record and captures are
@@ -173,10 +205,20 @@ class CycleRunner:
         start = time.monotonic()
         first = solve_ml(measurement.parsed.problem)  # unchecked: its centres are the ellipses', not yet corrected
         record = self.records.correct(measurement, first.T_s1_w)
+        extra: dict[str, object] = {}
+        residual: Residual | None = None
         try:
-            result = solve_pose(record.problem, "ml", false_alarm_rate=self.checks.false_alarm_rate)
-        except InconsistentMeasurement as exc:  # evidence for the trend monitor all the same
-            exc.residual = _residual(record.problem, solve_ml(record.problem).T_s1_w)  # type: ignore[attr-defined]
+            if record.marks is None:
+                result = solve_pose(record.problem, "ml", false_alarm_rate=self.checks.false_alarm_rate)
+            else:  # the trend monitor's evidence stays the holes' own, as in a cell without marks
+                residual = _residual(record.problem, solve_ml(record.problem).T_s1_w)
+                result, fit = solve_record_marks(record.problem, record.marks,
+                                                 false_alarm_rate=self.checks.marks_false_alarm_rate,
+                                                 consistency_false_alarm_rate=self.checks.false_alarm_rate)
+                extra["camera_deviation"] = camera_deviation(fit)
+        except (InconsistentMeasurement, CalibrationSuspect) as exc:  # evidence for the trend monitor all the same
+            exc.residual = residual or _residual(record.problem,  # type: ignore[attr-defined]
+                                                 solve_ml(record.problem).T_s1_w)
             raise
         elapsed = time.monotonic() - start
         displacement = record.displacement(result.T_s1_w)
@@ -184,9 +226,9 @@ class CycleRunner:
         D_b = displacement.base_offset
         sigmas = pose_sigmas(result.covariance, result.T_s1_w, record.grasp_point_w)
         measurement.timings_s["solve"] = elapsed
-        residual = _residual(record.problem, result.T_s1_w)
+        residual = residual or _residual(record.problem, result.T_s1_w)
         return Solution(
-            result={**result_to_dict(record, result, elapsed * 1e3), "calibration_residual": {
+            result={**result_to_dict(record, result, elapsed * 1e3), **extra, "calibration_residual": {
                 "chi2": residual.chi2, "dof": residual.dof, "per_view": [list(v) for v in residual.per_view]}},
             D_b=D_b,
             offset=frames.T_to_kuka_frame(D_b),
@@ -248,14 +290,16 @@ class CycleRunner:
             self._camera_configured = False
             raise
 
-    def _find(self, i: int, frame: Frame, T_b_f: np.ndarray, path: Path | None = None) -> tuple[Capture, float]:
-        """The worker: the expected holes of view ``i`` in ``frame``; (capture, seconds spent finding)."""
+    def _find(self, i: int, frame: Frame, T_b_f: np.ndarray, path: Path | None = None,
+              holes: bool = True) -> tuple[Capture, float]:
+        """The worker: the expected holes (``holes``) and marks of view ``i`` in ``frame``; (capture, seconds spent
+        finding)."""
         start = time.monotonic()
         pose, view = self.config.measuring_poses[i], self._views[i]
         ox, oy = (self.settings.region or (0, 0, 0, 0))[:2]
         bits = bit_depth_of(frame.pixel_format)
-        found = []
-        for j, search in zip(view.points, view.holes, strict=True):
+        found: list[tuple[float, float]] = []
+        for j, search in zip(view.points if holes else (), view.holes if holes else (), strict=True):
             (ex, ey), (rx, ry, rw, rh) = search.expected_px, search.roi
             try:
                 hole = measure_hole(frame.image, (ex - ox, ey - oy), search.radius_px, (rx - ox, ry - oy, rw, rh),
@@ -263,8 +307,23 @@ class CycleRunner:
             except MonoguideError as exc:
                 raise type(exc)(f"{pose.name}, {self.config.part.point_names[j]}: {exc.message}") from exc
             found.append((float(hole.center[0]) + ox, float(hole.center[1]) + oy))
+        marks = []
+        for m, search, shift in zip(view.marks, view.mark_searches, view.mark_shifts, strict=True):
+            (ex, ey), (rx, ry, rw, rh) = search.expected_px, search.roi
+            try:
+                mark = measure_hole(frame.image, (ex - ox, ey - oy), search.radius_px, (rx - ox, ry - oy, rw, rh),
+                                    max_offset_px=search.max_offset_px, bit_depth=bits)
+            except MonoguideError as exc:
+                name = self.config.reference_marks[m].name
+                raise MarkNotFound(f"{pose.name}, mark {name}: not found within {MARK_SEARCH_PX:g} px of where the "
+                                   f"calibration puts it ({ex:.0f}, {ey:.0f}) px: {exc.code}: {exc.message}; is "
+                                   "something (a part out of place, a cable) hiding it, or has the camera moved? "
+                                   "Nothing is written to the robot.") from exc
+            marks.append((m, (float(mark.center[0]) + ox - shift[0], float(mark.center[1]) + oy - shift[1])))
         seconds = time.monotonic() - start
-        return Capture(i, T_b_f, None if path is None else str(path), found[0], tuple(found), tuple(found)), seconds
+        first = found[0] if found else (math.nan, math.nan)
+        return Capture(i, T_b_f, None if path is None else str(path), first, tuple(found), tuple(found),
+                       tuple(marks)), seconds
 
     def _plan_view(self, i: int) -> _View:
         """Where pose ``i``'s holes are sought, over the whole deviation envelope (``ConfigError`` naming the
@@ -282,7 +341,23 @@ class CycleRunner:
                 raise ConfigError(f"{cfg.path}: measuring pose {pose.name} does not see point {j} anywhere in "
                                   f"the deviation envelope")
             holes.append(search)
-        return _View(pose.points, tuple(holes))
+        T_c_cf = frames.invert(pose.T_cf_si)
+        searches, shifts = [], []
+        for m in pose.marks:
+            mark = cfg.reference_marks[m]
+            search = hole_search(cfg.camera.intrinsics, T_c_cf, mark.position_cf, mark.normal_cf, mark.radius_mm,
+                                 np.eye(4)[None], margin_px=MARK_SEARCH_PX)
+            depth = float(frames.transform_points(T_c_cf, mark.position_cf[None])[0, 2])
+            if search is None or depth <= 0 or not cfg.camera.intrinsics.in_image(
+                    np.array([search.expected_px]), search.radius_px)[0]:
+                raise ConfigError(f"{cfg.path}: measuring pose {pose.name} lists mark {mark.name}, but its camera "
+                                  f"does not see it (position_cf {np.round(mark.position_cf, 1).tolist()}, depth "
+                                  f"{depth:.0f} mm): check [[reference_marks]] and the pose's marks")
+            searches.append(search)
+            shift = perspective_correction(cfg.camera.intrinsics, T_c_cf, mark.position_cf, mark.normal_cf,
+                                           mark.radius_mm)
+            shifts.append((float(shift[0]), float(shift[1])))
+        return _View(pose.points, tuple(holes), pose.marks, tuple(searches), tuple(shifts))
 
 
 @contextlib.contextmanager

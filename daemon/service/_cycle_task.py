@@ -148,15 +148,16 @@ class CycleTask:
             images_dir = self.journal.images_dir / f"cycle-{self.journal.next_number()}" if self.keep_images else None
             runner = self.runners.for_devices(part_job, self.devices.handle("camera"), self.devices.handle("robot"),
                                               images_dir)
+            marks_only = checking and getattr(runner, "has_marks", False)  # a check of the marks needs no part
             outcome.measurement = await self._stage(runner.measure, part_job, self.abort.event,
-                                                    lambda: self.abort.error)
+                                                    lambda: self.abort.error, *((False,) if marks_only else ()))
             machine.fire(Cause.VIEWS_MEASURED, f"{len(outcome.measurement.captures)} views")
             if checking:
                 await self._check(runner, outcome)
                 return outcome
             try:
                 outcome.solution = await self._stage(runner.solve, outcome.measurement)
-            except InconsistentMeasurement as exc:  # evidence for the trend monitor too, which may say why
+            except (InconsistentMeasurement, CalibrationSuspect) as exc:  # evidence for the trend monitor too
                 await self._observe(job, getattr(exc, "residual", None), exc)
                 raise
             await self._observe(job, getattr(outcome.solution, "residual", None))  # a stand-in runner's has none
@@ -195,11 +196,10 @@ class CycleTask:
             if self.health is not None and self.shown is not None:
                 self.shown.calibration_warning = self.health.warning
         if self.health is not None:
-            self.health.clear(f"a passing check job (cycle {number}: the reference part within "
-                              f"{found['shift_mm']:.3f} mm / {found['rotation_deg']:.4f} deg of its calibration)")
+            self.health.clear(f"a passing check job (cycle {number}: {found['summary']})")
             if self.shown is not None:
                 self.shown.calibration_warning = self.health.warning
-        self.machine.fire(Cause.REFERENCE_CHECKED, f"the reference within {found['shift_mm']:.3f} mm")
+        self.machine.fire(Cause.REFERENCE_CHECKED, found["summary"])
 
     async def _observe(self, job: int, residual: Residual | None, refused: MonoguideError | None = None) -> None:
         """The solve's residual into the part type's trend monitor; its alarm refuses the cycle (CALIBRATION_SUSPECT,
