@@ -4,8 +4,11 @@
 (``solver.planning.plan_layout``) and print them beside the cell's current ones; ``--write`` a copy of the
 cell file with them, ``--out`` a picture. Without ``--layout``: the paper's Fig. 5 study (Sec. 4) for the
 cell's camera and holes (the paper's roof without ``--config``). ``--record`` adds the predicted
-uncertainty of a measurement record's layout. Exit status: 0 done, 1 a failure (config, refused plan,
-bad record, unwritable output; named on standard error), 2 a bad option.
+uncertainty of a measurement record's layout. A cell with ``[[reference_marks]]`` is also checked for its
+fixed marks (``solver.planning.marks``: each measuring pose's marks in its image, apart, and never behind a part
+anywhere in its envelope), a table per pose; a mark not seen is a failure of the plan. Exit status: 0 done,
+1 a failure (config, refused plan, a fixed mark not seen, bad record, unwritable output; named on standard
+error), 2 a bad option.
 """
 
 from __future__ import annotations
@@ -26,8 +29,10 @@ from monoguide.daemon.figures import draw_style, new_figure, save_png
 from monoguide.daemon.plan import (
     CellLayout,
     cell_layout,
+    cell_marks_check,
     draw_layout,
     fig5_report,
+    marks_report,
     planned_pose_names,
     print_fig5,
     print_layout,
@@ -104,6 +109,8 @@ def plan(
         report, failed = _fig5(cfg, standoff_mm, sigma_px, steps, out, errors)
     if report is None:
         raise typer.Exit(1)
+    if cfg is not None and cfg.reference_marks:
+        failed |= not _marks(cfg, report, errors)
     if record is not None:
         report["record"] = _record_layout(record)
         if "error" in report["record"]:
@@ -237,6 +244,23 @@ def _fig5(cfg, standoff_mm, sigma_px, steps, out, errors) -> tuple[dict | None, 
         if not failed:
             report["map_png"] = str(out)
     return report, failed
+
+
+def _marks(cfg, report: dict[str, Any], errors) -> bool:
+    """The fixed marks' check into ``report["marks"]``; False (named on standard error) when a mark is not seen."""
+    try:
+        check = cell_marks_check(cfg)
+    except MonoguideError as error:
+        report["marks"] = {"error": error.as_dict()}
+        say(errors, error_line(error, "fixed marks"))
+        return False
+    report["marks"] = marks_report(check)
+    error = check.error()
+    if error is not None:
+        report["marks"]["error"] = error.as_dict()
+        say(errors, error_line(error, "fixed marks"))
+        return False
+    return True
 
 
 def _record_layout(path: Path) -> dict:

@@ -65,6 +65,7 @@ def print_layout(console: Console, report: dict[str, Any]) -> None:
         console.print(f"Cell config with the planned poses written to {escape(report['written'])}")
     if "layout_png" in report:
         console.print(f"Layout picture written to {escape(report['layout_png'])}")
+    print_marks(console, report)
     _print_record(console, report)
 
 
@@ -118,7 +119,55 @@ def print_fig5(console: Console, report: dict[str, Any]) -> None:
         console.print(f"  view {i + 1}: hole {i + 1} at pixel ({pu:.0f}, {pv:.0f})")
     if "map_png" in report:
         console.print(f"Map written to {escape(report['map_png'])}")
+    print_marks(console, report)
     _print_record(console, report)
+
+
+def print_marks(console: Console, report: dict[str, Any]) -> None:
+    """The fixed marks' check (``report["marks"]``, when the cell has marks): a table per measuring pose."""
+    marks = report.get("marks")
+    if marks is None:
+        return
+    console.print(
+        f"Fixed marks: each mark's whole circle in front of its view's camera and inside the image by the margin, its "
+        f"image apart from the view's other marks, and its line of sight never through a part measured from that view: "
+        f"≥ its radius + {marks['clearance_mm']:g} mm outside the part's outline wherever the part lies in its "
+        f"envelope ({marks['parts_sampled']} part poses of the envelope's box and a local search from the worst)")
+    for note in marks["notes"]:
+        console.print(f"  {escape(note)}")
+    views: dict[str, list[dict[str, Any]]] = {}
+    for row in marks["marks"]:
+        views.setdefault(row["view"], []).append(row)
+    for view, rows in views.items():
+        table = Table(title=f"Fixed marks of {escape(view)}")
+        for column in ("mark", "clearance mm", "image margin px", "ok/why"):
+            table.add_column(column, justify="right" if column in ("clearance mm", "image margin px") else "left")
+        for row in rows:
+            clearance = "-" if row["clearance_mm"] is None else f"{row['clearance_mm']:.1f} (≥{row['required_mm']:g})"
+            margin = "behind" if row["margin_px"] is None else f"{row['margin_px']:.0f} (≥{row['required_px']:g})"
+            table.add_row(escape(row["mark"]), clearance, margin, "ok" if row["ok"] else escape(_mark_why(row)))
+        console.print(table)
+    bad = sum(not row["ok"] for row in marks["marks"])
+    console.print(f"Fixed marks: all {len(marks['marks'])} seen" if not bad
+                  else f"Fixed marks: {bad} of {len(marks['marks'])} not seen (an error of the plan)")
+
+
+def _mark_why(row: dict[str, Any]) -> str:
+    out = []
+    for reason in row["reasons"]:
+        if reason == "hidden":
+            r = ", ".join(f"{v:+.1f}" for v in row["worst_deviation_deg"])
+            t = ", ".join(f"{v:+.0f}" for v in row["worst_deviation_mm"])
+            out.append(f"hidden by {row['part']} turned ({r})° shifted ({t}) mm")
+        elif reason == "out_of_image":
+            out.append("out of the image")
+        elif reason == "behind_camera":
+            out.append("behind the camera")
+        elif reason == "faces_away":
+            out.append("faces away")
+        elif reason == "overlaps":
+            out.append(f"overlaps {row['nearest']} in the image")
+    return "; ".join(out)
 
 
 def _print_record(console: Console, report: dict[str, Any]) -> None:

@@ -19,8 +19,19 @@ constraints.
 
 ``--marks`` writes the same cell with fixed reference marks (``config/sim-cell-marks.toml``): :data:`MARKS_PER_VIEW`
 dark circles of :data:`MARK_DIAMETER_MM` on the fixture :data:`MARK_BELOW_MM` under the part's plane, about
-:data:`MARK_DISTANCE_MM` from each view's hole(s) on the side away from the part (``solver.marks_layout.place_marks``),
-twice the holes' diameter so that the hole finder never takes one for the other.
+:data:`MARK_DISTANCE_MM` from each roof view's hole on the side away from the part
+(``solver.marks_layout.place_marks``), twice the holes' diameter so that the hole finder never takes one for the
+other. The planner's check (``solver.planning.marks``, :func:`check_cell_marks`) must pass on them, or nothing is
+written: each mark in its view's image, apart from the others, and never behind the roof anywhere in its envelope.
+At 200 mm from the hole and 10 mm under the plane (the first placement) 8 of the 12 roof marks (and all 9 of the
+hood's) failed it: the hole lies 40 mm inside the roof's edge, so a mark lay only 60-130 mm beyond it, and a roof
+turned 5 deg about the holes' centroid (its corner sweeps ~105 mm) and shifted 50 mm covers that; 300 mm cleared
+them but left room in the image only for three marks 26 mm apart on a line. 280 mm, 100 mm under the plane and
+150 px inside the image keep every line of sight >= 31 mm outside the roof's edge (the radius and 5 mm: 15 mm) with
+the marks spread (>= 145 mm apart, depth 620-720 mm). The hood's views (S5-S7) carry no marks: their holes lie
+120 mm inside the hood's edge and their cameras look outwards across it, so a hood shifted, turned and tilted inside
+the envelope (tilted 5 deg its sheet rises ~90 mm at the edge) covers every place below the part plane that their
+images hold, but for a few clustered spots (:data:`MARKED_PARTS`).
 """
 
 from __future__ import annotations
@@ -46,6 +57,7 @@ from monoguide.solver.planning import (
     LayoutRequest,
     plan_layout,
 )
+from monoguide.solver.planning.marks import Mark, MarkedView, MarksVisibility, PartSheet, check_marks
 from monoguide.solver.planning.request import assess_layout
 
 # [layout]: what the measuring poses are planned for. The depth of field 450-900 mm is that of the 8.5 mm
@@ -84,8 +96,13 @@ ROOF_OUTLINE_W = np.array([[-40.0, -40.0, 0.0], [1258.0, -40.0, 0.0], [1258.0, 2
 HOOD_OUTLINE_W = np.array([[0.0, 0.0, 0.0], [1500.0, 0.0, 0.0], [1500.0, 1000.0, 0.0], [0.0, 1000.0, 0.0]])
 MARKS_PER_VIEW = 3
 MARK_DIAMETER_MM = 20.0
-MARK_DISTANCE_MM = 200.0
-MARK_BELOW_MM = 10.0
+# where the roof views' marks go (docs/planning.md, Fixed marks): 280 mm from the hole, 100 mm under the part plane
+# (the cameras look inwards from beyond the roof's corners, so a deeper mark's line of sight cuts the sheet's plane
+# farther out), centres 150 px inside the image (room for a spread triangle; the circles keep >= 100 px)
+MARK_DISTANCE_MM = 280.0
+MARK_BELOW_MM = 100.0
+MARK_MARGIN_PX = 150.0
+MARKED_PARTS = ("roof",)  # whose views carry marks: none of the hood's views has room for marks it cannot cover
 T_CF_W0_PAPER = np.array([
     [-0.9998, -0.0131, -0.0120, -1381.259],
     [0.0129, -0.9999, 0.0085, -152.268],
@@ -177,18 +194,45 @@ def _target_poses(T_cf_w0: np.ndarray, T_cf_s: list[np.ndarray], depths: np.ndar
             for T, depth in zip(T_cf_s, depths, strict=True)]
 
 
-def cell_marks(m: dict[str, object], hood: dict[str, object]) -> tuple[MarkLayout, MarkLayout]:
+def cell_marks(m: dict[str, object], hood: dict[str, object]) -> tuple[MarkLayout | None, MarkLayout | None]:
     """The fixed marks of the roof's views and of the hood's (``[[reference_marks]]``), each view's about its
-    hole(s) as the reference part lies."""
-    out = []
-    for T_cf_w0, T_cf_s, points, views, first in (
-            (m["T_cf_w0"], m["T_cf_s"], POINTS_W, tuple((i,) for i in range(len(POINTS_W))), 1),
-            (hood["T_cf_w0"], hood["T_cf_s"], HOOD_POINTS_W, HOOD_VIEWS, len(POINTS_W) + 1)):
+    hole(s) as the reference part lies; None for a part type whose views carry none (:data:`MARKED_PARTS`)."""
+    out: list[MarkLayout | None] = []
+    for name, T_cf_w0, T_cf_s, points, views, first in (
+            ("roof", m["T_cf_w0"], m["T_cf_s"], POINTS_W, tuple((i,) for i in range(len(POINTS_W))), 1),
+            ("hood", hood["T_cf_w0"], hood["T_cf_s"], HOOD_POINTS_W, HOOD_VIEWS, len(POINTS_W) + 1)):
+        if name not in MARKED_PARTS:
+            out.append(None)
+            continue
         holes_cf = np.array([transform_points(T_cf_w0, points[list(v)]).mean(axis=0) for v in views])
         out.append(place_marks(PAPER_CAMERA, T_cf_s, holes_cf, count=MARKS_PER_VIEW, distance_mm=MARK_DISTANCE_MM,
-                               below_mm=MARK_BELOW_MM, normal_cf=T_cf_w0[:3, 2],
+                               below_mm=MARK_BELOW_MM, margin_px=MARK_MARGIN_PX, normal_cf=T_cf_w0[:3, 2],
                                view_names=[f"S{first + k}" for k in range(len(views))]))
     return out[0], out[1]
+
+
+def check_cell_marks(m: dict[str, object], hood: dict[str, object],
+                     layouts: tuple[MarkLayout | None, MarkLayout | None]) -> MarksVisibility:
+    """The planner's check of the cell's marks (``solver.planning.marks``), as ``monoguide plan`` makes it on the
+    written file: each view's marks in its image :data:`LAYOUT` ``margin_px`` inside, apart, and never hidden by its
+    part (the roof's views by the roof, the hood's by the hood) anywhere in :data:`ENVELOPE`."""
+    normal = m["T_cf_w0"][:3, 2]
+    marks: list[Mark] = []
+    views: list[MarkedView] = []
+    parts = (PartSheet("roof", m["T_cf_w0"], POINTS_W, ENVELOPE.at(POINTS_W), ROOF_OUTLINE_W),
+             PartSheet("hood", hood["T_cf_w0"], HOOD_POINTS_W, ENVELOPE.at(HOOD_POINTS_W), HOOD_OUTLINE_W))
+    n_views = 0
+    for part, (layout, T_cf_s) in enumerate(zip(layouts, (m["T_cf_s"], hood["T_cf_s"]), strict=True)):
+        if layout is None:
+            n_views += len(T_cf_s)
+            continue
+        first = len(marks)
+        marks += [Mark(k.name, k.position_cf, MARK_DIAMETER_MM / 2.0, normal) for k in layout.marks]
+        for v, T in enumerate(T_cf_s):
+            n_views += 1
+            views.append(MarkedView(f"S{n_views}", T, tuple(first + j for j in layout.marks_per_view[v]), (part,),
+                                    LAYOUT.margin_px))
+    return check_marks(PAPER_CAMERA, views, marks, parts)
 
 
 def cell_config_toml(marks: bool = False) -> str:
@@ -200,6 +244,12 @@ def cell_config_toml(marks: bool = False) -> str:
     plan: LayoutAssessment = m["plan"]
     focus_mm, aperture_mm = defocus_for_depth_of_field(PAPER_CAMERA.fx, *LAYOUT.depth_of_field_mm, DEFOCUS_CIRCLE_PX)
     s, r = plan.sigmas, plan.sigmas_with_repeatability
+    layouts = cell_marks(m, hood) if marks else None
+    clearance = ""
+    if layouts is not None:
+        check = check_cell_marks(m, hood, layouts)
+        assert check.ok, f"the generated marks fail the planner's check: {check.error()}"
+        clearance = f"{min(x.clearance_mm for x in check.results if x.clearance_mm is not None):.0f}"
     doc = tomlkit.document()
     for line in (
         "The simulated paper roof cell (Sec. 5 of the paper). Generated by",
@@ -213,8 +263,13 @@ def cell_config_toml(marks: bool = False) -> str:
         f"Job 2, the hood: 3 poses of 2 holes each (assessed, not planned), predicted sigma "
         f"{hood_plan.sigmas_with_repeatability.sigma_trans_mm:.3f} mm at the grasp point",
         f"with the repeatability; every hole >= {hood_plan.margin_px_min:.0f} px inside the image.",
-        *(["With 3 fixed reference marks per measuring pose, 20 mm dark circles on the fixture about 200 mm from",
-            "its hole(s), surveyed by the tracker ([[reference_marks]], docs/cycle-marks.md):",
+        *([f"With {MARKS_PER_VIEW} fixed reference marks per roof measuring pose (S1-S4), {MARK_DIAMETER_MM:g} mm dark "
+            f"circles on the fixture {MARK_BELOW_MM:g} mm",
+            f"below the roof's plane about {MARK_DISTANCE_MM:g} mm from its hole, surveyed by the tracker "
+            "([[reference_marks]], docs/cycle-marks.md);",
+            f"their lines of sight pass >= {clearance} mm outside the roof's edge wherever it lies in its envelope "
+            "(`monoguide plan`);",
+            "the hood's poses have none (no room in their images for marks a hood in its envelope cannot cover):",
             "  python -m monoguide.drivers.sim.make_cell_config --marks config/sim-cell-marks.toml"] if marks else []),
         "Edit the generator, not this file.",
     ):
@@ -229,10 +284,9 @@ def cell_config_toml(marks: bool = False) -> str:
     doc["reference"] = _table({"T_cf_b": matrix(m["T_cf_b"])},
                               "inv(T_b_cf) of Sec. 5.2 (R[1, 1] sign-corrected), orthonormalised: the robot base")
     doc["layout"] = _layout_table()
-    layouts = cell_marks(m, hood) if marks else None
     if layouts is not None:
         reference_marks = tomlkit.aot()
-        for layout in layouts:
+        for layout in (lay for lay in layouts if lay is not None):
             for mark in layout.marks:
                 reference_marks.append(_table({"name": mark.name, "position_cf": numbers(mark.position_cf, 3),
                                                "diameter_mm": MARK_DIAMETER_MM,
@@ -324,9 +378,10 @@ def main(argv: list[str] | None = None) -> int:
 # --- private -----------------------------------------------------------------------------------
 
 
-def _pose_marks(layouts: tuple[MarkLayout, MarkLayout] | None, part: int, view: int) -> dict[str, object]:
+def _pose_marks(layouts: tuple[MarkLayout | None, MarkLayout | None] | None, part: int,
+                view: int) -> dict[str, object]:
     """``marks = [...]`` of a measuring pose (nothing without marks)."""
-    if layouts is None:
+    if layouts is None or layouts[part] is None:
         return {}
     layout = layouts[part]
     return {"marks": [layout.marks[j].name for j in layout.marks_per_view[view]]}

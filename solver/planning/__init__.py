@@ -5,6 +5,7 @@
 - :mod:`.envelope` the part's deviation envelope and what a camera sees of a hole over all of it
 - :mod:`.request` a layout request and the assessment of any layout against it
 - :mod:`.layout` the planner: tilted, converging views that hold the whole envelope
+- :mod:`.marks` whether each view sees its fixed marks: in its image, apart, never behind a part in its envelope
 - :mod:`.errors` why a layout cannot be planned (plc codes 510-529)
 
 Frames: ``T_w0_si`` is measuring pose i in the frame of the reference part; the cell config stores
@@ -31,6 +32,14 @@ from monoguide.solver.planning.fig5 import (
     uncertainty_map,
 )
 from monoguide.solver.planning.layout import CameraPlacement, camera_pose_for, plan_layout
+from monoguide.solver.planning.marks import (
+    Mark,
+    MarkedView,
+    MarksVisibility,
+    MarkVisibility,
+    PartSheet,
+    check_marks,
+)
 from monoguide.solver.planning.prediction import PoseSigmas, layout_covariance, observed_covariance, pose_sigmas
 from monoguide.solver.planning.request import (
     LayoutAssessment,
@@ -57,11 +66,17 @@ __all__ = [
     "LayoutStandoff",
     "LayoutTooFewPoints",
     "LayoutViewAngle",
+    "Mark",
+    "MarkVisibility",
+    "MarkedView",
+    "MarksVisibility",
+    "PartSheet",
     "PoseSigmas",
     "ReachRegion",
     "UncertaintyMap",
     "assess_layout",
     "camera_pose_for",
+    "check_marks",
     "envelope_deviations",
     "hole_in_view",
     "layout_covariance",
