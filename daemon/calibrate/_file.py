@@ -2,11 +2,11 @@
 
 :func:`write_calibration` edits the parsed document (``tomlkit``, which keeps a TOML file's comments, order and
 layout), not a re-serialised TOML: only the values of the calibrated keys change (``[camera.intrinsics]``,
-``[camera] T_f_c``, ``[reference] T_cf_b`` and ``T_cf_w0``, each ``[[measuring_poses]] T_cf_si``); every comment,
-every other key, the order and the layout stay as they were, whether a table is written with a header or
-inline. A calibrated key the file lacks (``T_cf_si`` of a pose given by ``T_b_f``) is added after the last value
-of its table. The ``[calibration]`` section (provenance: date, session, wizard version, devices, a residual
-summary per step and ``previous``) is replaced as a whole.
+``[camera] T_f_c``, ``[reference] T_cf_b`` and ``T_cf_w0``, each ``[[measuring_poses]] T_cf_si``, each
+``[[reference_marks]] position_cf``); every comment, every other key, the order and the layout stay as they were,
+whether a table is written with a header or inline. A calibrated key the file lacks (``T_cf_si`` of a pose given
+by ``T_b_f``) is added after the last value of its table. The ``[calibration]`` section (provenance: date,
+session, wizard version, devices, a residual summary per step and ``previous``) is replaced as a whole.
 
 Safety: the new text goes to a temporary file beside the config, is loaded with
 :func:`~monoguide.daemon.config._cell.load_cell_config` and checked to hold exactly the calibrated values; only then is
@@ -50,6 +50,7 @@ from monoguide.drivers.toml_format import (
     commented,
     inline_table,
     matrix,
+    numbers,
     opening_comment,
     replace_section,
 )
@@ -68,10 +69,11 @@ __all__ = [
 ]
 
 ROUND_TRIP_TOL = 1e-9  # what loads back must equal what was calibrated to this (MATRIX_DECIMALS: ~1e-12)
+MARK_DECIMALS = 4  # a surveyed mark's position_cf, mm: 0.1 um, far below the tracker's 0.025 mm
 # what the caller may give in ``provenance`` (``previous`` is the writer's own)
 PROVENANCE_KEYS = ("date", "session", "wizard_version", "sim", "devices")
 _TABLES = {"camera.intrinsics": ("camera", "intrinsics"), "camera": ("camera",), "reference": ("reference",),
-           "measuring_poses": ("measuring_poses",), "parts": ("parts",)}
+           "measuring_poses": ("measuring_poses",), "parts": ("parts",), "reference_marks": ("reference_marks",)}
 
 
 # --- public --------------------------------------------------------------------------------------
@@ -139,7 +141,7 @@ def read_calibration_provenance(config: CellConfig | str | os.PathLike[str]) -> 
 
 def _calibrated_values(steps: dict[str, dict[str, Any]], raw: dict[str, Any], path: Path, mounting: bool = True
                        ) -> dict[tuple[str, int, str], tuple[str, Any]]:
-    """(table, array index or -1, key) -> ("matrix" | "number" | "integer", value) for every calibrated key;
+    """(table, array index or -1, key) -> ("matrix" | "number" | "integer" | "vector", value) for every calibrated key;
     ``mounting``: sfi's ``T_f_c`` too (a part type's session leaves the camera's mounting to the cell's)."""
     if unknown := sorted(set(steps) - set(CALIBRATION_STEPS)):
         raise CalibrationValueInvalid(f"{path}: unknown calibration steps {unknown}; steps are "
@@ -158,6 +160,16 @@ def _calibrated_values(steps: dict[str, dict[str, Any]], raw: dict[str, Any], pa
                 out[("camera.intrinsics", -1, key)] = ("integer", int(value))
             else:
                 out[("camera.intrinsics", -1, key)] = ("number", _finite(value, f"intrinsics: camera {key}"))
+    if "marks" in steps:
+        entries = raw.get("reference_marks") or []
+        names = [e.get("name") if isinstance(e, dict) else None for e in entries]
+        for mark in steps["marks"].get("marks") or []:
+            name = mark.get("name") if isinstance(mark, dict) else None
+            if name not in names:
+                raise CalibrationValueInvalid(f"marks: reference mark {name!r} is not in {path} (its "
+                                              f"[[reference_marks]]: {names})")
+            out[("reference_marks", names.index(name), "position_cf")] = (
+                "vector", _point(mark.get("position_cf"), f"marks: {name} position_cf"))
     if "base" in steps:
         out[("reference", -1, "T_cf_b")] = ("matrix", _rigid(steps["base"].get("T_cf_b"), "base: T_cf_b"))
     if "part" in steps:
@@ -193,6 +205,17 @@ def _rigid(value: Any, name: str) -> np.ndarray:
     return make_T(orthonormalize(T[:3, :3]), T[:3, 3])  # written exactly as it will load
 
 
+def _point(value: Any, name: str) -> np.ndarray:
+    """A point (3,) mm, rounded as it is written (so that what loads back is exactly it)."""
+    try:
+        p = np.asarray(value, dtype=float).reshape(3)
+    except (TypeError, ValueError) as exc:
+        raise CalibrationValueInvalid(f"{name} = {value!r}: expected [x, y, z] (mm)") from exc
+    if not np.all(np.isfinite(p)):
+        raise CalibrationValueInvalid(f"{name} = {value!r}: expected finite numbers")
+    return np.round(p, MARK_DECIMALS)
+
+
 def _finite(value: Any, name: str) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         raise CalibrationValueInvalid(f"{name} = {value!r}: expected a finite number")
@@ -216,6 +239,8 @@ def _check_written(tmp: Path, values: dict[tuple[str, int, str], tuple[str, Any]
             got = getattr(config.reference, key)
         elif table == "parts":
             got = config.parts[index].T_cf_w0
+        elif table == "reference_marks":
+            got = config.reference_marks[index].position_cf
         else:
             got = config.cell_poses[index].T_cf_si
         if got is None or not np.allclose(np.asarray(got, dtype=float), value, rtol=0.0, atol=ROUND_TRIP_TOL):
@@ -356,6 +381,11 @@ def _set(table: Table | InlineTable, key: str, kind: str, value: Any) -> None:
         item: Item = tomlkit.item(int(value))
     elif kind == "number":
         item = tomlkit.item(float(value))
+    elif kind == "vector":  # on one line, its comment after it kept
+        item = numbers(value, MARK_DECIMALS)
+        old = table.get(key)
+        if isinstance(old, Item) and old.trivia.comment:
+            commented(item, old.trivia.comment.removeprefix("#").strip())
     else:  # one row per line; inside an inline table too (TOML allows newlines inside an array value)
         item = matrix(value, comment=opening_comment(table[key]) if key in table else None)
     if key in table:

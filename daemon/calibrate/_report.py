@@ -113,6 +113,20 @@ def _points_md(r: dict[str, Any], label: str) -> list[str]:
     return out + [f"| {k} | {shown(v)} |" for k, v in items]
 
 
+def _marks_md(r: dict[str, Any]) -> list[str]:
+    out = [f"{len(r.get('marks') or [])} reference marks surveyed in their hidden-point nests; deviation from the "
+           f"nominal: largest {shown(r.get('max_deviation_mm'))} mm ({r.get('max_deviation_mark', '-')}), RMS "
+           f"{shown(r.get('rms_deviation_mm'))} mm (tolerance {shown(r.get('tolerance_mm'))} mm). The measured "
+           "position_cf go into [[reference_marks]].", "",
+           "| mark | x (mm) | y (mm) | z (mm) | deviation (mm) | dx dy dz (mm) | tracker RMS (mm) |",
+           "|---|--:|--:|--:|--:|--:|--:|"]
+    for m in r.get("marks") or []:
+        x, y, z = (f"{float(v):.3f}" for v in m.get("position_cf") or [float("nan")] * 3)
+        out.append(f"| {m.get('name')} | {x} | {y} | {z} | {shown(m.get('deviation_mm'))} | "
+                   f"{shown(m.get('deviation_cf'))} | {shown(m.get('tracker_rms_mm'))} |")
+    return out
+
+
 def _base_md(r: dict[str, Any]) -> list[str]:
     out = _points_md(r, "pose")
     out.insert(1, f"The base's 1-sigma: {shown(r.get('sigma_mm'))} mm, {shown(r.get('sigma_deg'))} deg; the SMR on the "
@@ -147,5 +161,5 @@ def _accuracy_md(r: dict[str, Any]) -> list[str]:
 
 
 _SECTION: dict[str, Callable[[dict[str, Any]], list[str]]] = {
-    "intrinsics": _intrinsics_md, "cell": lambda r: _points_md(r, "benchmark"), "base": _base_md,
+    "intrinsics": _intrinsics_md, "cell": lambda r: _points_md(r, "benchmark"), "marks": _marks_md, "base": _base_md,
     "part": lambda r: _points_md(r, "hole"), "sfi": _sfi_md, "verify": _verify_md, "accuracy": _accuracy_md}

@@ -67,6 +67,19 @@ def _draw_intrinsics(r: dict[str, Any], *_: Any) -> list[Figure]:
     return [figure]
 
 
+@draw_style
+def _draw_marks(r: dict[str, Any], *_: Any) -> list[Figure]:
+    marks = r.get("marks") or []
+    figure, ax = _chart(f"{TITLES['marks']}: each mark's distance from its nominal position")
+    bar_chart(ax, [str(m.get("name")) for m in marks], [_number(m.get("deviation_mm")) for m in marks],
+              label="the mark's distance from its nominal", reference=_number(r.get("tolerance_mm")),
+              reference_label=f"tolerance, {shown(r.get('tolerance_mm'))} mm")
+    ax.set_xlabel("reference mark")
+    ax.set_ylabel("distance from the nominal (mm)")
+    legend(ax)
+    return [figure]
+
+
 def _draw_point_residuals(step: str) -> Callable[..., list[Figure]]:
     what = {"cell": "benchmark", "base": "robot pose", "part": "featured hole"}[step]
 
@@ -142,7 +155,8 @@ def _draw_accuracy(r: dict[str, Any], *_: Any) -> list[Figure]:
 
 
 _DRAW: dict[str, Callable[..., list[Figure | None]]] = {
-    "intrinsics": _draw_intrinsics, "cell": _draw_point_residuals("cell"), "base": _draw_point_residuals("base"),
+    "intrinsics": _draw_intrinsics, "cell": _draw_point_residuals("cell"), "marks": _draw_marks,
+    "base": _draw_point_residuals("base"),
     "part": _draw_point_residuals("part"), "sfi": _draw_sfi, "verify": _draw_repeatability,
     "accuracy": _draw_accuracy}
 

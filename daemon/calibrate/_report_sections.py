@@ -11,6 +11,7 @@ REPORT_NAME = "calibration-report.md"
 FIGURES: dict[str, tuple[str, ...]] = {
     "intrinsics": ("intrinsics-residuals.png",),
     "cell": ("residuals-cell.png",),
+    "marks": ("marks-deviation.png",),
     "base": ("residuals-base.png",),
     "part": ("residuals-part.png",),
     "sfi": ("sfi-spread.png", "measuring-poses.png", "uncertainty-map.png"),
@@ -21,7 +22,8 @@ TRUTH_FIGURE = "truth-errors.png"
 # the issue's targets on the simulated cell, for the truth errors' plot
 TRUTH_TARGETS = {"focal_rel_error": 0.001, "base_mm": 0.05, "base_deg": 0.005, "sfi_mm_max": 0.05,
                  "sfi_deg_max": 0.01}
-TITLES = {"intrinsics": "1 Camera intrinsics", "cell": "2 Cell frame CF", "base": "3 Robot base BF",
+TITLES = {"intrinsics": "1 Camera intrinsics", "cell": "2 Cell frame CF", "marks": "2a Reference marks",
+          "base": "3 Robot base BF",
           "part": "4 Part frame WF and T_cf_w0", "sfi": "5 Measuring-pose frames SFi", "verify": "6 Verification",
           "accuracy": "7 Accuracy validation (Table 3)"}
 

@@ -23,7 +23,7 @@ from monoguide.drivers.tracker import LaserTracker
 # The actions the wizard asks of the operator and their detail keywords (the complete list):
 SHOW_PLATE = "show_plate"  # k: int, n: int -- hold/put the circle plate at position k of n (0-based k) in view
 CLEAR_VIEW = "clear_view"  # take the plate / target out of the camera's view
-PLACE_SMR = "place_smr"  # nest: str -- put the SMR in tracker nest `nest` ("B1", "P3", "T2.4")
+PLACE_SMR = "place_smr"  # nest: str -- put the SMR in tracker nest `nest` ("B1", "P3", "T2.4", a mark's "S1-M2")
 MOUNT_FLANGE_SMR = "mount_flange_smr"  # fit the SMR tool on the robot flange (nest "TCP")
 UNMOUNT_FLANGE_SMR = "unmount_flange_smr"
 PLACE_TARGET = "place_target"  # pose: int, placement: int -- the target under the cell's pose index `pose`
@@ -42,12 +42,14 @@ ACTIONS = (
     PLACE_PART,
 )
 
-STEPS = CALIBRATION_STEPS  # intrinsics, cell, base, part, sfi, verify, accuracy
+STEPS = CALIBRATION_STEPS  # intrinsics, cell, marks, base, part, sfi, verify, accuracy
+MARKS_STEP = "marks"  # only on a cell with [[reference_marks]]: a cell without them skips it
 
 # What each step needs done before it (direct and indirect, so a check needs no closure).
 REQUIRES: dict[str, tuple[str, ...]] = {
     "intrinsics": (),
     "cell": (),
+    "marks": ("cell",),
     "base": ("cell",),
     "part": ("cell",),
     "sfi": ("intrinsics", "cell"),
@@ -76,6 +78,7 @@ class CalibrationOptions:
     tolerance_mm: float = 0.5  # Table 3 verdict (the paper's requirement)
     tolerance_deg: float = 0.05
     cell_method: str = "best-fit"  # or "3-2-1"
+    marks_tolerance_mm: float = 5.0  # marks: a mark measured farther from its nominal position_cf is refused
 
     def as_dict(self) -> dict[str, Any]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
@@ -106,6 +109,12 @@ class CalibrationRig:
             if ident is not None:
                 out[kind] = " ".join(str(getattr(ident, k, "")) for k in ("vendor", "model", "serial")).strip()
         return out
+
+
+def no_marks_message(where: str) -> str:
+    """Why a cell without reference marks has no ``marks`` step (``where``: its config)."""
+    return (f"{where} has no [[reference_marks]] (the cell's fixed reference marks the marks step surveys, "
+            "docs/cell-config.md): there are none to survey")
 
 
 def quiet(_line: str) -> None:

@@ -4,7 +4,9 @@
 atomically (a temporary file, then ``os.replace``) after each step, so an interrupted ``monoguide calibrate``
 resumes at the first step not done. A session belongs to one cell config (and to ``--sim`` or not); the
 options that shaped a step already done may not change under it (``--from STEP`` or ``--restart`` redo it).
-A session file that cannot be read is an error naming it; it is never silently overwritten.
+A session file that cannot be read is an error naming it; it is never silently overwritten. The cell's session
+does every step of the cell's config: one without ``[[reference_marks]]`` skips ``marks`` (``skipped``, looked
+at each time the session is opened).
 
 A cell of several part types calibrates the cell-wide steps (intrinsics, cell, base) and the first part type in
 the cell's session; every other part type (``--job N``) in its own session, ``<work dir>/job-N/``, of the
@@ -15,12 +17,13 @@ from __future__ import annotations
 
 import json
 import os
+import tomllib
 from dataclasses import dataclass, fields
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from monoguide.daemon.calibrate._rig import REQUIRES, STEPS, CalibrationOptions
+from monoguide.daemon.calibrate._rig import MARKS_STEP, REQUIRES, STEPS, CalibrationOptions, no_marks_message
 from monoguide.daemon.config import CELL_STEPS, PART_STEPS
 from monoguide.daemon.errors import CalibrationSessionInvalid
 from monoguide.drivers.atomic_file import write_atomic
@@ -33,6 +36,7 @@ SESSION_FORMAT = "monoguide.calibration-session/1"
 OPTIONS_OF_STEP: dict[str, tuple[str, ...]] = {
     "intrinsics": ("plate_images",),
     "cell": ("cell_method",),
+    "marks": ("marks_tolerance_mm",),
     "base": ("base_poses",),
     "part": (),
     "sfi": ("placements", "visits"),
@@ -60,8 +64,17 @@ class CalibrationSession:
 
     @property
     def steps(self) -> tuple[str, ...]:
-        """The steps this session does, in order: all of them, or a part type's."""
-        return PART_STEPS if self.cell is not None else STEPS
+        """The steps this session does, in order: all of them but those its cell skips, or a part type's."""
+        if self.cell is not None:
+            return PART_STEPS
+        skipped = self.skipped()
+        return tuple(s for s in STEPS if s not in skipped)
+
+    def skipped(self) -> dict[str, str]:
+        """The steps of the wizard the cell's session does not do, with why (``marks`` of a cell without
+        ``[[reference_marks]]``); none in a part type's session."""
+        skipped = self.data.get("skipped") if self.cell is None else None
+        return dict(skipped) if isinstance(skipped, dict) else {}
 
     @property
     def job(self) -> int | None:
@@ -80,6 +93,8 @@ class CalibrationSession:
                 "refused": {}}
         if cell is not None:
             data["job"] = int(job) if job is not None else None
+        else:
+            data["skipped"] = skipped_steps(config)
         session = cls(Path(path), data, cell)
         session.save()
         return session
@@ -108,6 +123,9 @@ class CalibrationSession:
             if not isinstance(data.get(key), kind):
                 raise CalibrationSessionInvalid(f"{path}: the calibration session is corrupt: {key!r} missing or "
                                                 f"not a {kind.__name__}; move it away or run with --restart")
+        if not isinstance(data.get("skipped", {}), dict):
+            raise CalibrationSessionInvalid(f"{path}: the calibration session is corrupt: 'skipped' is not a dict; "
+                                            "move it away or run with --restart")
         unknown = sorted(set(data["steps"]) - set(STEPS))
         if unknown:
             raise CalibrationSessionInvalid(f"{path}: the calibration session names unknown step(s) "
@@ -210,6 +228,16 @@ class CalibrationSession:
         write_atomic(self.path, json.dumps(self.data, indent=1, allow_nan=True) + "\n", durable=True)
 
 
+def skipped_steps(config: Path) -> dict[str, str]:
+    """The steps the cell of ``config`` does not do, with why: ``marks`` without ``[[reference_marks]]``. A config
+    that cannot be read skips nothing here (loading it says why)."""
+    try:
+        raw = tomllib.loads(Path(config).read_text())
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return {}
+    return {} if raw.get("reference_marks") else {MARKS_STEP: no_marks_message(str(config))}
+
+
 def open_session(work_dir: Path, config: Path, sim: bool, given: dict[str, Any], *, restart: bool = False,
                  defaults: dict[str, Any] | None = None, job: int | None = None
                  ) -> tuple[CalibrationSession, CalibrationOptions]:
@@ -239,6 +267,8 @@ def open_session(work_dir: Path, config: Path, sim: bool, given: dict[str, Any],
         return CalibrationSession.create(path, config, sim, options, cell=cell, job=job), options
     session.cell = cell
     session.check_matches(config, sim)
+    if cell is None:  # the config may have gained or lost its marks since (or the session is older than the step)
+        session.data["skipped"] = skipped_steps(config)
     if session.job != job:
         raise CalibrationSessionInvalid(f"{session.path}: this session calibrates job {session.job}, not {job}")
     options = session.merge_options(given)

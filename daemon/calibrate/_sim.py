@@ -4,9 +4,9 @@
 
 - ``work_dir/cell.toml``: the truth config with its calibration values perturbed (seeded; intrinsics f ±1.5 %,
   cx cy ±20 px, no distortion; ``T_cf_b`` and ``T_cf_w0`` 5 mm / 0.3°, each ``T_cf_si`` 3 mm / 0.3°, ``T_f_c``
-  2 mm / 0.2°), the measuring poses' taught flange poses ``T_b_f`` as the robot program has them, the
-  ``[cell_frame]`` and ``[calibration_target]`` nominals, and a ``[sim]`` section stripped of the truth. That
-  file is what the wizard calibrates; the truth stays in the truth config.
+  2 mm / 0.2°, each ``[[reference_marks]] position_cf`` 3 mm), the measuring poses' taught flange poses ``T_b_f``
+  as the robot program has them, the ``[cell_frame]`` and ``[calibration_target]`` nominals, and a ``[sim]``
+  section stripped of the truth. That file is what the wizard calibrates; the truth stays in the truth config.
 - ``monoguide sim-cell --no-plc`` for the truth config (on loopback ``host``, its state file and log in
   ``work_dir``) as a child process that dies with the wizard (``_sim_process``): the simulated tracker behind
   its pty and the simulated robot controller (UR or KUKA, as ``[robot] backend`` says) with its
@@ -53,6 +53,7 @@ from monoguide.solver.frames import compose, invert, make_T, rotvec_to_matrix
 FOCAL_REL = 0.015  # the perturbation of the calibration values: what "before calibration" means here
 PRINCIPAL_PX = 20.0
 POSE_PERTURBATION = {"T_cf_b": (5.0, 0.3), "T_cf_w0": (5.0, 0.3), "T_cf_si": (3.0, 0.3), "T_f_c": (2.0, 0.2)}
+MARK_PERTURBATION_MM = 3.0  # each reference mark's nominal off its true centre by this (within the marks step's 5 mm)
 
 
 @contextmanager
@@ -128,6 +129,10 @@ def write_before_calibration(truth: CellConfig, data: dict[str, Any], path: Path
         entry["T_cf_si"] = _perturbed(pose.T_cf_si, *POSE_PERTURBATION["T_cf_si"], rng)
     for entry, part in zip((parts or [])[1:], truth.parts[1:], strict=True):
         entry["T_cf_w0"] = _perturbed(part.T_cf_w0, *POSE_PERTURBATION["T_cf_w0"], rng)
+    marks_rng = np.random.default_rng([seed, 0x4D524B])  # "MRK": its own stream, the draws above unchanged
+    for entry, mark in zip(data.get("reference_marks") or [], truth.reference_marks, strict=True):
+        shift = marks_rng.normal(size=3)
+        entry["position_cf"] = (mark.position_cf + MARK_PERTURBATION_MM * shift / np.linalg.norm(shift)).tolist()
     if "cell_frame" not in data:
         data["cell_frame"] = {"method": "best-fit",
                               "benchmarks": {k: [float(v) for v in p] for k, p in truth.sim.benchmarks.items()}}

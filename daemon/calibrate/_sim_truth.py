@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from monoguide.daemon.config import CellConfig
-from monoguide.solver.frames import compose, invert, pose_difference
+from monoguide.solver.frames import compose, invert, pose_difference, transform_points
 
 
 def truth_error_function(truth: CellConfig) -> Callable[..., dict[str, float]]:
@@ -18,11 +18,13 @@ def truth_error_function(truth: CellConfig) -> Callable[..., dict[str, float]]:
     The frames measured with the tracker (base, part, SFi, ``T_s1_w0``) are compared in the cell frame as the
     ``cell`` step of ``earlier`` calibrated it: an error of the cell frame itself moves all of them alike and
     cancels in the offset (only ``T_b_s1``, ``T_s1_si`` and ``T_s1_w0`` reach it), so it is reported once, as
-    ``cell_mm`` / ``cell_deg``, and the same figures in the true cell frame as ``*_true_cf``."""
+    ``cell_mm`` / ``cell_deg``, and the same figures in the true cell frame as ``*_true_cf``; so are the reference
+    marks' centres (``marks_mm_max``, ``marks_mm_rms``: the tracker's noise alone)."""
     sim = truth.sim
     assert sim is not None and truth.reference.T_cf_b is not None
     T_cf_b, T_cf_w0, cam = truth.reference.T_cf_b, truth.reference.T_cf_w0, truth.camera.intrinsics
     T_cf_si = {p.name: p.T_cf_si for p in truth.measuring_poses}
+    marks_cf = {m.name: np.asarray(m.position_cf, dtype=float) for m in truth.reference_marks}
 
     def truth_errors(step: str, result: dict[str, Any], earlier: dict[str, dict[str, Any]] | None = None
                      ) -> dict[str, float]:
@@ -49,6 +51,15 @@ def truth_error_function(truth: CellConfig) -> Callable[..., dict[str, float]]:
                 frame("base", result["T_cf_b"], T_cf_b)
             if "smr_f" in result and sim.tool_smr_f is not None:
                 out["smr_mm"] = float(np.linalg.norm(np.asarray(result["smr_f"], dtype=float) - sim.tool_smr_f))
+        elif step == "marks":  # each mark's centre against the truth's, in the cell frame as calibrated
+            got = {m["name"]: m["position_cf"] for m in result.get("marks", []) if m.get("name") in marks_cf}
+            if got:
+                measured = np.array([got[n] for n in got], dtype=float).reshape(-1, 3)
+                true_cf = np.array([marks_cf[n] for n in got]).reshape(-1, 3)
+                errors = np.linalg.norm(measured - transform_points(C, true_cf), axis=1)
+                out["marks_mm_max"], out["marks_mm_rms"] = float(errors.max()), float(np.sqrt(np.mean(errors ** 2)))
+                if "T_cf_tracker" in cell:
+                    out["marks_mm_max_true_cf"] = float(np.linalg.norm(measured - true_cf, axis=1).max())
         elif step == "part" and "T_cf_w0" in result:
             frame("part", result["T_cf_w0"], T_cf_w0)
         elif step == "sfi":

@@ -1,4 +1,5 @@
-"""Steps 1-3 of ``monoguide calibrate``: camera intrinsics, the cell frame CF, the robot base BF.
+"""Steps 1-3 of ``monoguide calibrate``: camera intrinsics, the cell frame CF (and, on a cell with
+``[[reference_marks]]``, its fixed marks surveyed in it: the ``marks`` step), the robot base BF.
 
 Each step gathers its measurements through the rig's devices, asking the operator for what a person must
 do, and calls the solver (``monoguide.solver.calibration``); a solver refusal (degenerate geometry, too few
@@ -20,6 +21,7 @@ from monoguide.daemon.calibrate._rig import (
     SHOW_PLATE,
     UNMOUNT_FLANGE_SMR,
     CalibrationRig,
+    no_marks_message,
 )
 from monoguide.drivers.errors import ConfigError
 from monoguide.solver.calibration.base import fit_robot_base
@@ -97,6 +99,72 @@ def run_cell(rig: CalibrationRig, earlier: dict[str, dict[str, Any]]) -> dict[st
             f"(tolerance {DEFAULT_MAX_RESIDUAL_MM:g} mm; residuals mm: {listed}): a nest or a nominal is wrong")
     rms = float(np.sqrt(np.mean(np.square(list(residuals.values())))))
     return {"method": method, "T_cf_tracker": T_cf_tracker.tolist(), "residuals_mm": residuals, "rms_mm": rms}
+
+
+# --- the marks step: right after cell, on a cell with [[reference_marks]] only ----------------------------------
+#
+# Each mark has an SMR nest of its own name, a hidden-point nest: the SMR set in it has its centre at the mark's
+# centre. The tracker's reading (its own frame) goes into CF with the cell step's T_cf_tracker and is checked
+# against the mark's nominal position_cf: an SMR in the wrong nest gives a wrong mark, which would shift every
+# cycle's view of it, so a mark farther than marks_tolerance_mm (5 mm) refuses the step, naming it, the distance
+# and the nominal the reading is nearest to. The measured positions are written into [[reference_marks]]
+# position_cf (docs/calibration.md, "The marks step").
+
+
+def run_marks(rig: CalibrationRig, earlier: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """The tracker measures each reference mark's hidden-point nest (by the mark's name); each reading in CF
+    (``T_cf_tracker`` of ``cell``) against the mark's nominal ``position_cf``. Refused
+    (:class:`CalibrationResidualTooLarge`) when a mark is more than ``marks_tolerance_mm`` from its nominal, after
+    every mark is measured (the progress says so at once, mark by mark)."""
+    marks = rig.config.reference_marks
+    if not marks:
+        raise ConfigError(f"step 'marks': {no_marks_message(str(rig.config_path))}")
+    T_cf_tracker = earlier_matrix(earlier, "marks", "cell", "T_cf_tracker")
+    tolerance = float(rig.options.marks_tolerance_mm)
+    nominals = {m.name: np.asarray(m.position_cf, dtype=float).reshape(3) for m in marks}
+    measured: list[dict[str, Any]] = []
+    n = len(marks)
+    for k, mark in enumerate(marks, start=1):
+        rig.operator.ask(PLACE_SMR, f"place the SMR in the nest of reference mark {mark.name} ({k} of {n}; its "
+                         "hidden-point nest: the SMR's centre at the mark's centre)", nest=mark.name)
+        reading = rig.tracker.measure_point(nest=mark.name)
+        point = np.asarray(reading.point_mm, dtype=float).reshape(3)
+        p_cf = transform_points(T_cf_tracker, point.reshape(1, 3))[0]
+        offset = p_cf - nominals[mark.name]
+        deviation = float(np.linalg.norm(offset))
+        entry = {"name": mark.name, "position_cf": p_cf.tolist(), "nominal_cf": nominals[mark.name].tolist(),
+                 "deviation_cf": offset.tolist(), "deviation_mm": deviation, "tracker_rms_mm": float(reading.rms_mm),
+                 "point_tracker": point.tolist()}
+        measured.append(entry)
+        x, y, z = p_cf
+        line = (f"mark {mark.name} ({k}/{n}): {x:.3f} {y:.3f} {z:.3f} mm (CF), {deviation:.3f} mm from its nominal, "
+                f"tracker RMS {reading.rms_mm:.4f} mm")
+        if deviation > tolerance:
+            line += f": beyond the {tolerance:g} mm tolerance: {_which_nest(mark.name, p_cf, nominals)}"
+        rig.progress(line)
+    wrong = [e for e in measured if e["deviation_mm"] > tolerance]
+    if wrong:
+        listed = "; ".join(f"{e['name']} {e['deviation_mm']:.3f} mm: "
+                           f"{_which_nest(e['name'], np.asarray(e['position_cf']), nominals)}" for e in wrong)
+        raise CalibrationResidualTooLarge(
+            f"reference marks: {len(wrong)} of {n} measured farther than {tolerance:g} mm from their nominal "
+            f"position_cf: {listed} (put the SMR in the right nest and redo the step, monoguide calibrate marks; "
+            "or correct the nominal; a mark moved on purpose: --values with a larger marks-tolerance-mm)")
+    deviations = np.array([e["deviation_mm"] for e in measured])
+    worst = measured[int(np.argmax(deviations))]
+    return {"marks": measured, "tolerance_mm": tolerance, "max_deviation_mm": float(deviations.max()),
+            "max_deviation_mark": worst["name"], "rms_deviation_mm": float(np.sqrt(np.mean(deviations ** 2))),
+            "max_tracker_rms_mm": max(e["tracker_rms_mm"] for e in measured)}
+
+
+def _which_nest(name: str, p_cf: np.ndarray, nominals: dict[str, np.ndarray]) -> str:
+    """What an operator makes of a reading far from its mark: the nominal it is nearest to, if another's."""
+    distances = {other: float(np.linalg.norm(p_cf - p)) for other, p in nominals.items()}
+    nearest = min(distances, key=distances.__getitem__)
+    if nearest != name:
+        return (f"the reading is {distances[nearest]:.3f} mm from mark {nearest}'s nominal: is the SMR in "
+                f"{nearest}'s nest instead of {name}'s?")
+    return f"is the SMR in {name}'s nest, and is its nominal position_cf right?"
 
 
 def run_base(rig: CalibrationRig, earlier: dict[str, dict[str, Any]]) -> dict[str, Any]:

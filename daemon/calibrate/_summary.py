@@ -38,6 +38,10 @@ def step_summary(step: str, result: dict[str, Any]) -> dict[str, Any]:
     elif step in ("cell", "part"):
         res = list((r.get("residuals_mm") or {}).values())
         out |= {"method": r.get("method"), "rms_mm": r.get("rms_mm"), "max_mm": max(res) if res else None}
+    elif step == "marks":
+        out |= {"marks": len(r.get("marks") or []), "max_deviation_mm": r.get("max_deviation_mm"),
+                "max_deviation_mark": r.get("max_deviation_mark"), "rms_deviation_mm": r.get("rms_deviation_mm"),
+                "tolerance_mm": r.get("tolerance_mm"), "max_tracker_rms_mm": r.get("max_tracker_rms_mm")}
     elif step == "base":
         res = list(r.get("residuals_mm") or [])
         out |= {"rms_mm": r.get("rms_mm"), "max_mm": max(res) if res else None, "poses": len(res),
@@ -60,7 +64,8 @@ def step_summary(step: str, result: dict[str, Any]) -> dict[str, Any]:
 
 
 def describe(step: str, r: dict[str, Any]) -> list[str]:
-    """A short human summary of one step's result (and its truth error in --sim)."""
+    """A short human summary of one step's result (the marks': a line per mark too; its truth error in --sim)."""
+    per_item: list[str] = []
     if step == "intrinsics":
         c = r["camera"]
         line = (f"intrinsics: fx {c['fx']:.2f} fy {c['fy']:.2f} cx {c['cx']:.2f} cy {c['cy']:.2f} px, "
@@ -73,6 +78,15 @@ def describe(step: str, r: dict[str, Any]) -> list[str]:
         worst = max(res, key=res.get) if res else "-"
         what = f"cell frame ({r.get('method')})" if step == "cell" else "part frame"
         line = f"{what}: RMS {r['rms_mm']:.3f} mm, largest {res.get(worst, 0.0):.3f} mm ({worst}), {len(res)} points"
+    elif step == "marks":
+        marks = r.get("marks") or []
+        line = (f"reference marks: {len(marks)} surveyed, largest deviation from the nominal "
+                f"{_num(r, 'max_deviation_mm', '.3f')} mm ({r.get('max_deviation_mark', '-')}), RMS "
+                f"{_num(r, 'rms_deviation_mm', '.3f')} mm (tolerance {_num(r, 'tolerance_mm', 'g')} mm); their "
+                "position_cf go into [[reference_marks]] with the calibration")
+        per_item = [f"  {m['name']}: {' '.join(f'{v:.3f}' for v in m['position_cf'])} mm (CF), "
+                    f"{m['deviation_mm']:.3f} mm from its nominal, tracker RMS {m['tracker_rms_mm']:.4f} mm"
+                    for m in marks]
     elif step == "base":
         line = (f"robot base: RMS {r['rms_mm']:.3f} mm over {len(r['residuals_mm'])} poses, largest "
                 f"{max(r['residuals_mm']):.3f} mm; sigma {r['sigma_mm']:.4f} mm / {r['sigma_deg']:.5f} deg; SMR on "
@@ -90,7 +104,7 @@ def describe(step: str, r: dict[str, Any]) -> list[str]:
         verdict = {True: "PASSED", False: "FAILED"}.get(r.get("passed"), "no verdict")
         line = (f"accuracy: RMS dR {_num(r, 'rms_dR_deg', '.4f')} deg, dT {_num(r, 'rms_dT_mm', '.3f')} mm over "
                 f"{len(r.get('rows', []))} poses: {verdict}")
-    lines = [line]
+    lines = [line, *per_item]
     if r.get("truth_error"):
         lines.append("  error against the simulated truth: "
                      + ", ".join(f"{k} {v:.4g}" for k, v in r["truth_error"].items()))

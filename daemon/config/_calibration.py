@@ -5,7 +5,7 @@ simulated cell places it (``[[sim.targets]]``)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import UTC, datetime
 from typing import Any
 
 import numpy as np
@@ -17,8 +17,10 @@ from monoguide.solver.calibration.target import TargetMarks, grid_marks
 
 CELL_FRAME_METHODS = ("best-fit", "3-2-1")
 # the wizard's steps, in order (daemon/calibrate/ takes them from here), the keys of [calibration.steps]
-CALIBRATION_STEPS = ("intrinsics", "cell", "base", "part", "sfi", "verify", "accuracy")
-CELL_STEPS = ("intrinsics", "cell", "base")  # done once for the cell; the others once per part type
+CALIBRATION_STEPS = ("intrinsics", "cell", "marks", "base", "part", "sfi", "verify", "accuracy")
+CELL_STEPS = ("intrinsics", "cell", "base")  # done once for the cell; every part type's calibration is made with them
+# "marks" is the cell's too (done in the cell's session), but only on a cell with [[reference_marks]] (its fixed marks
+# surveyed: cell_calibration_gap); no part type's calibration depends on it (both are in CF): not among CELL_STEPS
 PART_STEPS = ("part", "sfi", "verify", "accuracy")
 PART_REQUIRED_STEPS = ("part", "sfi")  # without these a part type's jobs are refused (PART_NOT_CALIBRATED)
 
@@ -142,6 +144,29 @@ def part_calibration_gap(calibration: dict[str, Any] | None, job: int, jobs: tup
         return (f"calibrated before the cell-wide step(s) were redone ({when}): steps "
                 f"{', '.join(PART_REQUIRED_STEPS)} must be redone")
     return None
+
+
+def cell_calibration_gap(calibration: dict[str, Any] | None, has_marks: bool) -> str | None:
+    """Why the cell's own calibration as the wizard wrote it (``[calibration.steps]``) is incomplete, or ``None``:
+    a cell with ``[[reference_marks]]`` (``has_marks``) needs its ``marks`` step, done after its ``cell`` step (the
+    marks' ``position_cf`` are in that cell frame; surveyed before it was redone they are in another). A cell
+    without marks needs none; a cell without a wizard's provenance (hand-entered values) has no gap."""
+    if calibration is None or not has_marks:
+        return None
+    steps = calibration.get("steps") or {}
+    if "marks" not in steps:
+        return ("step marks missing: the [[reference_marks]] position_cf are nominal, never surveyed with the "
+                "tracker (monoguide calibrate marks)")
+    marks_done, cell_done = (steps["marks"] or {}).get("done"), (steps.get("cell") or {}).get("done")
+    if isinstance(marks_done, str) and isinstance(cell_done, str) and _when(marks_done) < _when(cell_done):
+        return (f"the reference marks were surveyed ({marks_done}) before the cell frame was redone ({cell_done}): "
+                "step marks must be redone")
+    return None
+
+
+def _when(iso: str) -> datetime:
+    when = datetime.fromisoformat(iso)
+    return when if when.tzinfo is not None else when.replace(tzinfo=UTC)
 
 
 def _read_step_summaries(steps: ConfigTable, names: tuple[str, ...]) -> dict[str, dict[str, Any]]:

@@ -9,7 +9,9 @@ measures the nests where the scene has them:
 - ``show_plate`` k of n: the circle plate held in front of the camera at the k-th of n well-spread poses
   (:func:`~monoguide.drivers.sim.target_renderer.plate_camera_poses`, seeded with (seed, n));
 - ``clear_view``: the plate and every target taken away;
-- ``place_smr`` nest: the tracker's beam on that nest;
+- ``place_smr`` nest: the tracker's beam on that nest: a benchmark (``cell``), a featured hole (``part``), a
+  target's nest (``sfi``) or a reference mark's hidden-point nest, named by the mark (``marks``: the SMR's centre
+  at the mark's centre, :meth:`~monoguide.drivers.sim.cell.SimCell.smr_positions`);
 - ``mount_flange_smr`` / ``unmount_flange_smr``: the SMR on the flange tool (tracker nest ``TCP``, following
   the simulated robot through its truth file) or not;
 - ``place_target`` pose i, placement j: target i put down near its place under measuring pose i, a little
@@ -92,6 +94,8 @@ class SimOperator:
         self.scene.beam_on = str(nest)
         if nest == FLANGE_NEST and not self.scene.flange_smr:
             log.warning("place_smr %s: the SMR tool is not on the flange (mount_flange_smr first)", nest)
+        elif nest != FLANGE_NEST and nest not in self.cell.smr_positions():  # the tracker will say so too
+            log.warning("place_smr %s: the simulated cell has no such nest", nest)
         self._write_targets()
 
     def _mount_flange_smr(self) -> None:
