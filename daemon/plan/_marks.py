@@ -3,8 +3,9 @@ with the marks it lists, and the part types measured from it, each anywhere in i
 
 A pose's marks must be seen whichever of the cell's part types is measured from it: each part type that lists
 the pose in its views (``[[parts]] measuring_poses``; the single ``[part]`` lists them all) may hide them, with its
-own ``[layout]`` envelope; a part type that never stops at the pose is not there when it is measured. A pose's
-marks keep its part types' largest ``[layout] margin_px`` from the image border.
+own envelope (its ``[layout]`` one, widened per axis to ``[checks] envelope_axis_mm`` / ``envelope_axis_deg``
+when those let the cycle accept parts farther off); a part type that never stops at the pose is not there when it
+is measured. A pose's marks keep its part types' largest ``[layout] margin_px`` from the image border.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from __future__ import annotations
 from typing import Any
 
 from monoguide.daemon.config import CellConfig, LayoutConfig
+from monoguide.solver.envelope import DeviationEnvelope
 from monoguide.solver.planning.marks import Mark, MarkedView, MarksVisibility, PartSheet, check_marks
 
 
@@ -25,7 +27,7 @@ def cell_marks_check(config: CellConfig) -> MarksVisibility | None:
         view = config.for_job(job)
         layout = view.layout or LayoutConfig()
         parts.append(PartSheet(view.part_name, view.reference.T_cf_w0, view.part.points_w,
-                               layout.envelope.at(view.part.points_w), view.part.outline_w))
+                               _envelope(view, layout).at(view.part.points_w), view.part.outline_w))
         uses.append(({p.name for p in view.measuring_poses}, layout.constraints.margin_px))
     views = []
     for pose in config.cell_poses:
@@ -35,6 +37,17 @@ def cell_marks_check(config: CellConfig) -> MarksVisibility | None:
         margin = max((uses[j][1] for j in by), default=LayoutConfig().constraints.margin_px)
         views.append(MarkedView(pose.name, pose.T_cf_si, pose.marks, by, margin))
     return check_marks(config.camera.intrinsics, views, marks, parts)
+
+
+def _envelope(view: CellConfig, layout: LayoutConfig) -> DeviationEnvelope:
+    """The part type's ``[layout]`` envelope, each axis widened to what ``[checks]`` accepts."""
+    planned = layout.envelope
+    if view.checks is None:
+        return planned
+    checked = view.checks.envelope(planned)
+    return DeviationEnvelope(
+        tuple(max(a, b) for a, b in zip(planned.translation_mm, checked.translation_mm, strict=True)),
+        tuple(max(a, b) for a, b in zip(planned.rotation_deg, checked.rotation_deg, strict=True)), planned.about_w)
 
 
 def marks_report(check: MarksVisibility) -> dict[str, Any]:

@@ -12,6 +12,7 @@ from typer.testing import CliRunner
 
 from monoguide.daemon.cli import app
 from monoguide.daemon.config import load_cell_config
+from monoguide.daemon.plan import cell_marks_check
 from monoguide.solver.frames import transform_points
 
 ROOT = Path(__file__).parents[3]
@@ -106,3 +107,17 @@ def test_a_mark_out_of_its_views_image_fails_the_plan(tmp_path: Path) -> None:
     bad = [m for m in json.loads(run.stdout)["marks"]["marks"] if not m["ok"]]
     assert [(m["view"], m["mark"], m["status"]) for m in bad] == [("S2", "S2-M3", "out_of_image")]
     assert "view S2, mark S2-M3: it is imaged" in run.stderr
+
+
+def test_the_envelope_checked_is_widened_to_what_the_offset_check_accepts(tmp_path: Path) -> None:
+    """[checks] envelope_axis_mm = 150 mm per axis lets the cycle accept roofs three times as far off as [layout]'s
+    envelope: some roof mark is then hidden, and the check says so."""
+    cell = tmp_path / "cell.toml"
+    text = SIM_CELL_MARKS.read_text()
+    assert text.count("\nmax_rms_px = 1.5\n") == 1
+    wider = "\nmax_rms_px = 1.5\nenvelope_axis_mm = [150.0, 150.0, 150.0]\n"
+    cell.write_text(text.replace("\nmax_rms_px = 1.5\n", wider))
+    check = cell_marks_check(load_cell_config(cell))
+    assert check is not None and not check.ok
+    assert all(r.status == "hidden" and r.part == "roof" for r in check.failures())
+    assert max(abs(v) for r in check.failures() for v in r.deviation_mm) > 100.0
