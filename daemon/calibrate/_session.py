@@ -180,11 +180,12 @@ class CalibrationSession:
         return [s for s in self.steps if s in self.data["steps"]]
 
     def results(self) -> dict[str, dict[str, Any]]:
-        """The results the steps read: this session's, and a part type's session's cell-wide ones."""
+        """The results the steps read: this session's, and a part type's session's cell-wide ones (the marks'
+        too: its verification measures with the surveyed marks)."""
         own = {s: self.data["steps"][s] for s in self.done()}
         if self.cell is None:
             return own
-        return {**{s: r for s, r in self.cell.results().items() if s in CELL_STEPS}, **own}
+        return {**{s: r for s, r in self.cell.results().items() if s in (*CELL_STEPS, MARKS_STEP)}, **own}
 
     def next_step(self) -> str | None:
         """The first step not done (``None``: all done)."""

@@ -27,10 +27,12 @@ from monoguide.daemon.calibrate import (
     run_step,
     write_calibration,
 )
+from monoguide.daemon.calibrate._earlier import calibrated_config
 from monoguide.daemon.calibrate._sim import MARK_PERTURBATION_MM
 from monoguide.daemon.cli import app
 from monoguide.daemon.config import load_cell_config
 from monoguide.daemon.config._calibration import cell_calibration_gap
+from monoguide.daemon.errors import CalibrationStepNotReady
 from monoguide.drivers.errors import ConfigError
 from monoguide.solver.calibration.errors import CalibrationResidualTooLarge
 from monoguide.solver.frames import invert, transform_points
@@ -190,3 +192,25 @@ def test_marks_is_the_cells_step_not_a_part_types(tmp_path: Path) -> None:
 def test_the_tolerance_is_an_option_of_the_step(tmp_path: Path) -> None:
     session, options = open_session(tmp_path, MARKS_CELL, False, {"marks_tolerance_mm": 25.0})
     assert options.marks_tolerance_mm == 25.0 and session.data["options"]["marks_tolerance_mm"] == 25.0
+
+
+def test_verify_and_accuracy_measure_with_the_marks_as_surveyed() -> None:
+    """The later steps' cell as calibrated so far has the surveyed marks (the cycle measures each camera's pose
+    from them: with the nominals, 3 mm off, the verification would see every camera moved)."""
+    cfg = load_cell_config(MARKS_CELL)
+    earlier: dict[str, dict[str, object]] = {
+        "intrinsics": {"camera": cfg.camera.intrinsics.as_dict()}, "base": {"T_cf_b": cfg.reference.T_cf_b.tolist()},
+        "part": {"T_cf_w0": cfg.reference.T_cf_w0.tolist()},
+        "sfi": {"poses": [{"name": p.name, "T_cf_si": p.T_cf_si.tolist()} for p in cfg.measuring_poses],
+                "T_f_c": cfg.camera.T_f_c.tolist()}}
+    with pytest.raises(CalibrationStepNotReady, match="verify: needs the marks step's result"):
+        calibrated_config(cfg, earlier)
+    surveyed = {m.name: m.position_cf + np.array([0.0, 0.0, 1.0]) for m in cfg.reference_marks}
+    earlier["marks"] = {"marks": [{"name": k, "position_cf": v.tolist()} for k, v in surveyed.items()]}
+    done = calibrated_config(cfg, earlier)
+    assert [m.name for m in done.reference_marks] == [m.name for m in cfg.reference_marks]
+    for mark in done.reference_marks:
+        np.testing.assert_allclose(mark.position_cf, surveyed[mark.name])
+    earlier["marks"] = {"marks": earlier["marks"]["marks"][1:]}  # type: ignore[index]
+    with pytest.raises(CalibrationStepNotReady, match=f"not surveyed reference mark.*{cfg.reference_marks[0].name}"):
+        calibrated_config(cfg, earlier, "accuracy")
