@@ -101,12 +101,16 @@ class MarksResult:
         return math.degrees(math.sqrt(max(0.0, float(np.trace(self.covariance[:3, :3])))))
 
 
-def fit_marks(problem: MarksProblem) -> MarksResult:
-    """The maximum-likelihood part pose and camera corrections (no checks; :func:`solve_with_marks` checks).
+def fit_marks(problem: MarksProblem, T_init: np.ndarray | None = None) -> MarksResult:
+    """The maximum-likelihood part pose and camera corrections (no checks; :func:`solve_with_marks` checks),
+    started from ``T_init`` (e.g. the holes' own fit) or the paper's initial value (Eq. 17-21).
 
     Raises :class:`NoConvergence`, :class:`PointBehindCamera` (at the initial value), :class:`DegenerateGeometry`.
     """
-    T_init, init_iterations = initial_iterated(problem.holes)
+    if T_init is None:
+        T_init, init_iterations = initial_iterated(problem.holes)
+    else:
+        init_iterations = 0
     model = _Model(problem)
     state = model.start(T_init)
     z, J = model.linearise(state)

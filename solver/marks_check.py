@@ -73,10 +73,12 @@ def solve_with_marks(
     *,
     false_alarm_rate: float = DEFAULT_MARKS_FALSE_ALARM_RATE,
     consistency_false_alarm_rate: float = DEFAULT_FALSE_ALARM_RATE,
+    T_init: np.ndarray | None = None,
 ) -> MarksResult:
-    """Fit (:func:`solver.marks.fit_marks`), check (:func:`assess_marks`) and return the result with its
-    assessment; raises :class:`CalibrationSuspect` (a view's camera, a mark) or :class:`InconsistentMeasurement`."""
-    result = fit_marks(problem)
+    """Fit (:func:`solver.marks.fit_marks`, from ``T_init`` when given), check (:func:`assess_marks`) and return the
+    result with its assessment; raises :class:`CalibrationSuspect` (a view's camera, a mark) or
+    :class:`InconsistentMeasurement`."""
+    result = fit_marks(problem, T_init)
     result.assessment = assess_marks(result, false_alarm_rate, consistency_false_alarm_rate)
     if result.assessment.refusal is not None:
         raise result.assessment.refusal

@@ -103,6 +103,7 @@ def solve_record_marks(
     *,
     false_alarm_rate: float = DEFAULT_MARKS_FALSE_ALARM_RATE,
     consistency_false_alarm_rate: float = DEFAULT_FALSE_ALARM_RATE,
+    T_init: np.ndarray | None = None,
 ) -> tuple[PoseResult, MarksResult]:
     """The part pose with the marks, checked: (the pose as the cycle uses it, the fit with its cameras); raises
     :class:`CalibrationSuspect` (a view's camera, the cameras together, a mark) or :class:`InconsistentMeasurement`.
@@ -111,7 +112,7 @@ def solve_record_marks(
         raise RecordError("view_sigma: a record with marks needs the robot's repeatability (view_sigma), the prior "
                           "of where each camera stood")
     result = solve_with_marks(marks.problem(holes), false_alarm_rate=false_alarm_rate,
-                              consistency_false_alarm_rate=consistency_false_alarm_rate)
+                              consistency_false_alarm_rate=consistency_false_alarm_rate, T_init=T_init)
     return as_pose_result(result), result
 
 
