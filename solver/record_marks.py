@@ -17,11 +17,11 @@ from typing import Any
 import numpy as np
 
 from monoguide.solver.errors import MissingKey, NonFiniteValue, RecordError, UnknownKey, UnknownReference
-from monoguide.solver.marks import MarksResult
+from monoguide.solver.marks import MarksResult, fit_marks
 from monoguide.solver.marks_check import (
     DEFAULT_MARKS_FALSE_ALARM_RATE,
     as_pose_result,
-    solve_with_marks,
+    assess_marks,
     view_deviation,
 )
 from monoguide.solver.marks_problem import CALIBRATION_SIGMA_DEG, CALIBRATION_SIGMA_MM, MarksProblem, ReferenceMark
@@ -106,13 +106,19 @@ def solve_record_marks(
     T_init: np.ndarray | None = None,
 ) -> tuple[PoseResult, MarksResult]:
     """The part pose with the marks, checked: (the pose as the cycle uses it, the fit with its cameras); raises
-    :class:`CalibrationSuspect` (a view's camera, the cameras together, a mark) or :class:`InconsistentMeasurement`.
-    The holes problem needs the robot's repeatability (``view_sigma``): it is the cameras' prior."""
+    :class:`CalibrationSuspect` (a view's camera, the cameras together, a mark) or :class:`InconsistentMeasurement`,
+    carrying the cameras' deviations all the same (``error.camera_deviation``, :func:`camera_deviation`: the journal
+    keeps them, a refused cycle is the one that matters most). The holes problem needs the robot's repeatability
+    (``view_sigma``): it is the cameras' prior."""
     if not (holes.view_sigma_mm or holes.view_sigma_deg):
         raise RecordError("view_sigma: a record with marks needs the robot's repeatability (view_sigma), the prior "
                           "of where each camera stood")
-    result = solve_with_marks(marks.problem(holes), false_alarm_rate=false_alarm_rate,
-                              consistency_false_alarm_rate=consistency_false_alarm_rate, T_init=T_init)
+    result = fit_marks(marks.problem(holes), T_init)
+    result.assessment = assess_marks(result, false_alarm_rate, consistency_false_alarm_rate)
+    if result.assessment.refusal is not None:
+        refusal = result.assessment.refusal
+        refusal.camera_deviation = camera_deviation(result)  # type: ignore[attr-defined]
+        raise refusal
     return as_pose_result(result), result
 
 

@@ -211,6 +211,8 @@ class CycleTask:
                                     datetime.now(UTC).isoformat(timespec="seconds"), residual)
         except CalibrationSuspect as alarm:
             if refused is not None:
+                if hasattr(refused, "camera_deviation"):  # what the marks measured stays in the journal
+                    alarm.camera_deviation = refused.camera_deviation  # type: ignore[attr-defined]
                 raise alarm from refused
             raise
         finally:

@@ -144,11 +144,19 @@ def journal_entry(outcome: Outcome, inputs: PlcInputs) -> CycleEntry:
     captures = list(getattr(m, "captures", None) or [])
     return CycleEntry(
         started_at=outcome.started_at, finished_at=time.time(), job=inputs.job, part_tag=inputs.part_tag,
-        record=getattr(m, "record", None), result=getattr(s, "result", None), error=outcome.error,
+        record=getattr(m, "record", None), result=getattr(s, "result", None) or _refused_result(outcome.error),
+        error=outcome.error,
         timings_s=timings,
         poses_at_capture=[c.T_b_f.tolist() for c in captures],
         image_paths=[c.image_path for c in captures if c.image_path is not None],
     )
+
+
+def _refused_result(error: MonoguideError | None) -> dict[str, Any] | None:
+    """What a refused cycle's solve still measured: with reference marks, each camera's deviation (the journal keeps
+    it for ``monoguide health``); None otherwise."""
+    deviation = getattr(error, "camera_deviation", None)
+    return None if deviation is None else {"status": "error", "camera_deviation": deviation}
 
 
 def result_registers(outcome: Outcome, number: int, inputs: PlcInputs) -> CycleResult:
