@@ -11,6 +11,7 @@ whose ``T_f_c`` and ``T_cf_si`` were right-multiplied by the bump's inverse (ben
 
     .venv/bin/python benchmarks/bench_calibration_faults.py                 # 8 cycles per fault, seed 5: minutes
     .venv/bin/python benchmarks/bench_calibration_faults.py --cycles 4 --files
+    .venv/bin/python benchmarks/bench_calibration_faults.py --config config/sim-cell-marks.toml   # with marks
 """
 
 from __future__ import annotations
@@ -52,6 +53,8 @@ def main() -> None:
     parser.add_argument("--cycles", type=int, default=8, help="cycles under each fault (default 8)")
     parser.add_argument("--seed", type=int, default=5, help="[sim] seed of every run (default 5)")
     parser.add_argument("--files", action="store_true", help="also the camera bumps as calibration files")
+    parser.add_argument("--config", type=Path, default=None, help="the simulated cell (default config/sim-cell.toml; "
+                        "config/sim-cell-marks.toml: with reference marks)")
     args = parser.parse_args()
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench-calibration-faults-") as tmp:
@@ -64,10 +67,11 @@ def main() -> None:
         if args.files:
             for name, deg, mm, axis in BUMP_FILES:
                 path = work / f"bumped-{deg:g}-{mm:g}-{axis}.toml"
-                path.write_text(bumped_calibration(SIM_CELL.read_text(), deg, mm, axis))
+                path.write_text(bumped_calibration((args.config or SIM_CELL).read_text(), deg, mm, axis))
                 runs.append((name, ["--calibration", str(path), "--cycles", str(args.cycles)], None))
         for n, (name, extra, fault) in enumerate(runs):
-            command = [*MONOGUIDE, "simulate", "--json", "--jobs", "1", "--seed", str(args.seed), "--host",
+            config = [] if args.config is None else ["--config", str(args.config.resolve())]
+            command = [*MONOGUIDE, "simulate", "--json", "--jobs", "1", "--seed", str(args.seed), *config, "--host",
                        f"127.0.33.{HOST_BASE + n}", "--work-dir", str(work / f"run-{n}"), *extra]
             print(f"running: monoguide {shlex.join(command[3:])}", file=sys.stderr, flush=True)
             started = time.monotonic()
@@ -102,8 +106,8 @@ def _outcome(lines: list[dict[str, Any]], fault: str | None) -> dict[str, Any]:
 
 
 def _print_table(rows: list[tuple[str, dict[str, Any], float]], args: argparse.Namespace) -> None:
-    print(f"monoguide simulate --jobs 1 (the roof), seed {args.seed}, {args.cycles} cycles under each fault; "
-          f"grasp error from the truth log")
+    print(f"monoguide simulate --jobs 1 (the roof) on {args.config or 'config/sim-cell.toml'}, seed {args.seed}, "
+          f"{args.cycles} cycles under each fault; grasp error from the truth log")
     header = (f"{'fault':<30} {'cycles ok':>10} {'refused (codes)':<52} {'grasp RMS / max, mm':>20} "
               f"{'ok > 0.5 mm':>12} {'run s':>6}")
     print(header)
