@@ -40,6 +40,7 @@ from monoguide.solver import frames
 from monoguide.solver.errors import CalibrationSuspect, InconsistentMeasurement, MonoguideError
 from monoguide.solver.marks import fit_marks
 from monoguide.solver.marks_check import assess_marks, view_tolerance
+from monoguide.solver.marks_layout import MarkLayout
 from monoguide.solver.marks_synthetic import (
     REPEATABILITY_DEG,
     REPEATABILITY_MM,
@@ -61,7 +62,8 @@ def main() -> None:
     parser.add_argument("--cycles", type=int, default=1000, help="cycles per accuracy and fault row (default 1000)")
     parser.add_argument("--good-cycles", type=int, default=20000, help="good cycles for the false alarms")
     parser.add_argument("--seed", type=int, default=2026)
-    parser.add_argument("--layout", choices=("planned", "paper"), default="planned")
+    parser.add_argument("--layout", choices=("planned", "paper", "marks-cell"), default="planned",
+                        help="marks-cell: the marks of config/sim-cell-marks.toml (280 mm out, 100 mm below)")
     args = parser.parse_args()
     print("command: .venv/bin/python benchmarks/bench_marks.py " + " ".join(sys.argv[1:]))
     cells = {3: _cell(args.layout, 3), 2: _cell(args.layout, 2)}
@@ -256,6 +258,13 @@ def _drift(cell: MarkedCell, view: int, mm: float, deg: float) -> Fault:
 def _cell(layout: str, count: int) -> MarkedCell:
     if layout == "paper":
         return marked_paper_roof_cell(count)
+    if layout == "marks-cell":  # the simulated cell's own marks, as its config states them
+        config = load_cell_config(SIM_CELL.with_name("sim-cell-marks.toml")).for_job(1)
+        cell = marked_cell(config.camera.intrinsics, config.part.points_w, config.reference.T_cf_w0,
+                           [p.T_cf_si for p in config.measuring_poses], config.camera.T_f_c, 2)
+        marks = tuple(m.as_solver() for m in config.reference_marks)
+        per_view = tuple(p.marks[:count] for p in config.measuring_poses)
+        return cell.with_marks(MarkLayout(marks, per_view))
     config = load_cell_config(SIM_CELL).for_job(1)  # the roof: S1-S4, view i sees hole i
     poses = [p.T_cf_si for p in config.measuring_poses]
     return marked_cell(config.camera.intrinsics, config.part.points_w, config.reference.T_cf_w0, poses,
@@ -263,6 +272,9 @@ def _cell(layout: str, count: int) -> MarkedCell:
 
 
 def _describe(layout: str, cell: MarkedCell) -> str:
+    if layout == "marks-cell":
+        return ("the simulated roof cell with its own marks (config/sim-cell-marks.toml: 3 per view, 280 mm from its "
+                "hole, 100 mm below the roof's plane)")
     if layout == "paper":
         return "the paper's roof cell, 4 views straight down from 650 mm (solver.synthetic.paper_roof_cell)"
     return ("the simulated roof cell, the 4 roof views of config/sim-cell.toml (tilted 30 deg, camera 180 mm off "
