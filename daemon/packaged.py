@@ -1,6 +1,7 @@
 """The files monoguide ships beside its code (package data), wherever it is installed.
 
-A wheel or an offline bundle carries the simulated roof cell's config (``config/sim-cell.toml``), the commented
+A wheel or an offline bundle carries the simulated roof cell's config (``config/sim-cell.toml``, and with fixed
+reference marks ``config/sim-cell-marks.toml``), the commented
 config of a real cell (``config/cell-template.toml``), the robot programs (``config/ur/``, ``config/kuka/``) and
 the systemd unit (``systemd/monoguide.service``); in a checkout they are the same files of the source tree. Read
 them through here, never through a path relative to the working directory or to a module's ``__file__``.
@@ -14,6 +15,7 @@ from pathlib import Path
 CONFIG_PACKAGE = "monoguide.config"  # the top-level folder config/ (setuptools package-dir)
 SYSTEMD_PACKAGE = "monoguide.systemd"  # the top-level folder systemd/
 SIM_CELL = "sim-cell.toml"
+SIM_CELL_MARKS = "sim-cell-marks.toml"  # the same cell with fixed reference marks (docs/cycle-marks.md)
 CELL_TEMPLATE = "cell-template.toml"
 ROBOT_PROGRAMS = {"ur": ("monoguide.script",), "kuka": ("monoguide.src", "monoguide.dat", "monoguide.xml")}
 UNIT_FILE = "monoguide.service"
@@ -27,6 +29,11 @@ def config_file(name: str) -> Path:
 def sim_cell_config() -> Path:
     """The simulated paper roof cell: the default of ``simulate`` and ``calibrate --sim``."""
     return config_file(SIM_CELL)
+
+
+def sim_cell_marks_config() -> Path:
+    """The simulated roof cell with fixed reference marks: ``simulate --marks``."""
+    return config_file(SIM_CELL_MARKS)
 
 
 def robot_program_files() -> dict[str, Path]:

@@ -70,6 +70,8 @@ def simulate(
                                                        "calibration fault, e.g. 'camera bump 0.1 0' (repeatable)")
     ] = None,
     config: Annotated[Path | None, typer.Option("--config", "-c", help="simulated cell config (TOML)")] = None,
+    marks: Annotated[bool, typer.Option(
+        "--marks", help="the simulated roof cell with fixed reference marks (sim-cell-marks.toml)")] = False,
     calibration: Annotated[Path | None, typer.Option(
         "--calibration", help="the service uses this file's calibration values (monoguide calibrate's output); "
                               "the simulated cell keeps --config's")] = None,
@@ -90,6 +92,12 @@ def simulate(
     err = stderr_console()
     if robot is not None and robot not in ("ur", "kuka"):
         fail(ConfigError(f"--robot {robot!r}: expected ur or kuka"))
+    if marks and config is not None:
+        fail(ConfigError(f"--marks with --config {config}: --marks is the shipped cell with reference marks; give one"))
+    if marks:
+        from monoguide.daemon.packaged import sim_cell_marks_config
+
+        config = sim_cell_marks_config()
     names = tuple(" ".join(f.replace(":", " ").split()) for f in fault or ())
     faults = faults or bool(names)
     try:
