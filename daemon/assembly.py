@@ -114,8 +114,10 @@ def build_plc(config: CellConfig) -> Plc:
 def sim_cell_spec(config: CellConfig) -> SimCellSpec:
     """The simulated cell's definition from the cell config (``[sim]`` with the shared sections). With ``[sim]
     truth_config`` the cell is that file's: this file's calibration values are then only what the service
-    believes (``monoguide simulate --calibration``), the simulated devices keep the truth."""
-    from monoguide.drivers.sim.cell import SimCellSpec, SimPartType, SimTarget
+    believes (``monoguide simulate --calibration``), the simulated devices keep the truth (the reference marks
+    too: the truth config's ``[[reference_marks]]`` are where the marks are). The parts' ``outline_w`` go along:
+    the simulated camera does not see a mark the part's sheet hides."""
+    from monoguide.drivers.sim.cell import SimCellSpec, SimMark, SimPartType, SimTarget
 
     sim = config.sim
     if sim is None:
@@ -153,7 +155,9 @@ def sim_cell_spec(config: CellConfig) -> SimCellSpec:
         aperture_mm=sim.aperture_mm,
         target_marks=config.calibration_target.marks if config.calibration_target is not None else None,
         part_types=tuple(SimPartType(p.job, p.part.points_w, p.part.hole_radius_mm, p.T_cf_w0, p.part.point_names,
-                                     p.measuring_poses[0].number) for p in config.parts),
+                                     p.measuring_poses[0].number, p.part.outline_w) for p in config.parts),
+        marks=tuple(SimMark(m.name, m.position_cf, m.radius_mm, m.normal_cf) for m in config.reference_marks),
+        outline_w=config.part.outline_w,
     )
 
 

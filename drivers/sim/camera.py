@@ -20,6 +20,15 @@ sim-cell) holds the ones the cell has now, read before every grab (one there whe
 the state of the cell, not an event), and :meth:`SimCamera.set_calibration_faults` sets them without a sim-cell.
 The part's holes are rendered through them (the scene mode's targets and plate are not).
 
+Reference marks: the cell's fixed marks (``SimCellSpec.marks``, the config's ``[[reference_marks]]``) are rendered
+with the holes, in the same rendering (blur, defocus at their own depth, noise, light, exposure and calibration
+faults apply to them exactly as to the holes): each a dark disc in its own plane, where the true camera sees it.
+A mark the part's sheet hides is not drawn: one whose line of sight (the segment from the camera centre to the
+mark's centre) crosses the plane of the current part's outline (``SimCellSpec.outline_w``, at its true pose)
+inside the outline; without an outline the part hides nothing. Only marks in front of the camera and (partly) in
+the image are drawn. :attr:`SimCamera.last_marks` keeps each mark's ground truth (:class:`MarkTruth`). The
+``occluded`` failure still covers the holes only.
+
 Scene mode (``monoguide calibrate --sim``): when the cell has a :class:`~monoguide.drivers.sim.cell.SimScene`
 (set by the simulated operator), the camera renders what is in front of it: the circle plate held in view,
 else a calibration target lying under it (its circular marks,
@@ -32,7 +41,7 @@ from __future__ import annotations
 import json
 import logging
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -46,17 +55,39 @@ from monoguide.drivers.sim.cell import SimCell, SimScene
 from monoguide.drivers.sim.hole_renderer import Glare, HoleSpec, RenderedView, RenderSettings, render_view
 from monoguide.drivers.sim.robot_motion import follow_truth
 from monoguide.drivers.sim.target_renderer import RenderedTarget, TargetRenderSettings, render_target
+from monoguide.solver.camera import CameraModel
 from monoguide.solver.frames import compose, invert, make_T, transform_points
 
 log = logging.getLogger(__name__)
 
 FAILURES = ("timeout", "disconnect", "black", "occluded", "glare")
 MAX_SIM_TIMEOUT_S = 0.2  # a simulated timeout waits at most this long before raising
+_MARK_RIM_POINTS = 256  # a mark's rim is projected at this many points for its box in the image
+_MARK_FOV_FACTOR = 1.5  # marks within this factor of the image's reach are looked at (beyond, the lens model may fold)
+
+
+@dataclass(frozen=True, eq=False)
+class MarkTruth:
+    """Ground truth of one reference mark in the last grab (:attr:`SimCamera.last_marks`).
+
+    ``center_px`` (2,): the exact projection of the mark's 3-D centre through the true lens at the true camera pose
+    (calibration faults included), raw full-sensor pixels (NaN when it is behind the camera); ``depth_mm``: the
+    centre's camera z; ``hidden``: the part's sheet lies on the line of sight to its centre; ``rendered``: drawn
+    (in front of the camera, its rim (partly) in the image, not hidden); ``in_view``: drawn and its whole rim in
+    the image."""
+
+    name: str
+    center_px: np.ndarray
+    depth_mm: float
+    hidden: bool
+    rendered: bool
+    in_view: bool
 
 
 class SimCamera:
     """:class:`~monoguide.drivers.camera.Camera` reading a :class:`SimCell`. ``last_view`` keeps the last
-    rendering's ground truth (``centers_px`` in full-sensor pixels, ``in_view``)."""
+    rendering's ground truth (``centers_px`` in full-sensor pixels, ``in_view``: the holes'), ``last_marks`` the
+    reference marks' (mark name -> :class:`MarkTruth`; empty when the last grab showed a calibration scene)."""
 
     def __init__(self, cell: SimCell, render: RenderSettings | None = None, seed: int | None = None,
                  follow: Path | None = None) -> None:
@@ -70,6 +101,7 @@ class SimCamera:
         self.rng = np.random.default_rng(cell.spec.seed + 1 if seed is None else seed)
         self.settings = CameraSettings()
         self.last_view: RenderedView | RenderedTarget | None = None
+        self.last_marks: dict[str, MarkTruth] = {}
         self.target_render = TargetRenderSettings()
         self._open = False
         self._frames = 0
@@ -190,6 +222,7 @@ class SimCamera:
 
     def _render(self, failure: str | None) -> RenderedView | RenderedTarget:
         cell = self.cell
+        self.last_marks = {}
         if cell.scene is not None:
             if cell.scene.part is not None:  # the part the operator put there, whatever the part supply says
                 cell.set_part_pose(cell.scene.part)
@@ -203,7 +236,8 @@ class SimCamera:
         if failure == "glare":
             centre = _first_in_image(cell, T_c_w, holes)
             settings = replace(settings, glare=Glare(center_px=centre, sigma_px=60.0, peak_grey=400.0))
-        view = render_view(lens, T_c_w, holes, settings, self.rng)
+        marks, self.last_marks = self._marks_seen(lens, T_c_w)
+        view = render_view(lens, T_c_w, holes, settings, self.rng, clutter=marks)  # the marks: no hole truth
         if failure == "occluded":
             # something (a cable, a gripper finger) lies over the hole: sheet-grey disc at the hole
             r = int(3.0 * cell.spec.hole_radius_mm * cell.camera.fx / max(float(T_c_w[2, 3]), 1.0)) + 8
@@ -212,6 +246,46 @@ class SimCamera:
                 if seen:
                     cv2.circle(view.image, (round(u), round(v)), r, grey, thickness=-1)
         return view
+
+    def _marks_seen(self, lens: CameraModel, T_c_w: np.ndarray) -> tuple[list[HoleSpec], dict[str, MarkTruth]]:
+        """The reference marks to draw, in the part frame W (``T_c_w``: the true camera's view of the part), and
+        every mark's truth. A mark is expressed in W through the true part pose: ``T_w_cf = inv(T_cf_w_true)``."""
+        marks = self.cell.spec.marks
+        if not marks:
+            return [], {}
+        T_w_cf = invert(self.cell.T_cf_w_true)
+        R, t = T_w_cf[:3, :3], T_w_cf[:3, 3]
+        centers_w = np.array([m.position_cf for m in marks], dtype=float).reshape(-1, 3) @ R.T + t
+        radii = np.array([m.radius_mm for m in marks], dtype=float)
+        centers_c = centers_w @ T_c_w[:3, :3].T + T_c_w[:3, 3]
+        depth = centers_c[:, 2]
+        ahead = depth > 0
+        centers_px = np.full((len(marks), 2), np.nan)
+        if np.any(ahead):
+            centers_px[ahead] = lens.project(centers_c[ahead])
+        hidden = _Sheet(self.cell.spec.outline_w).hides(invert(T_c_w)[:3, 3], centers_w)
+        reach = _normalized_reach(lens) * _MARK_FOV_FACTOR
+        with np.errstate(divide="ignore", invalid="ignore"):
+            near_fov = np.all(np.abs(centers_c[:, :2] / depth[:, None]) <= reach + (radii / depth)[:, None], axis=1)
+        # the whole rim in front of the camera, not behind the sheet, about the image: worth a look at its rim
+        candidates = (depth > radii) & ~hidden & near_fov
+        draw: list[HoleSpec] = []
+        truth: dict[str, MarkTruth] = {}
+        for k, mark in enumerate(marks):
+            rendered = in_view = False
+            if candidates[k]:
+                hole = HoleSpec(center_w=centers_w[k], radius_mm=float(radii[k]),
+                                normal_w=R @ np.asarray(mark.normal_cf, dtype=float).reshape(3))
+                rim = lens.project(_rim_w(hole) @ T_c_w[:3, :3].T + T_c_w[:3, 3])
+                lo, hi = rim.min(axis=0), rim.max(axis=0)
+                rendered = bool(hi[0] >= -0.5 and hi[1] >= -0.5 and lo[0] <= lens.width - 0.5
+                                and lo[1] <= lens.height - 0.5)
+                in_view = rendered and bool(np.all(lens.in_image(rim)))
+                if rendered:
+                    draw.append(hole)
+            truth[mark.name] = MarkTruth(mark.name, centers_px[k].copy(), float(depth[k]), bool(hidden[k]), rendered,
+                                         in_view)
+        return draw, truth
 
     def _render_scene(self, scene: SimScene, failure: str | None) -> RenderedTarget | None:
         """The plate held in view, else the nearest calibration target in view; None: neither (the part shows)."""
@@ -261,6 +335,63 @@ def _serial(fault: object) -> int | None:
     if isinstance(fault, dict) and isinstance(fault.get("serial"), int):
         return int(fault["serial"])
     return None
+
+
+class _Sheet:
+    """The part's sheet as its outline polygon (in the part frame W) for the line-of-sight test; no outline: none."""
+
+    def __init__(self, outline_w: np.ndarray | None) -> None:
+        self.polygon: np.ndarray | None = None
+        if outline_w is None:
+            return
+        corners = np.asarray(outline_w, dtype=float).reshape(-1, 3)
+        self.origin = corners.mean(axis=0)
+        _, _, vt = np.linalg.svd(corners - self.origin)
+        self.normal, self.basis = vt[2], vt[:2].T  # the outline's plane (best fit) and a basis (3, 2) in it
+        self.polygon = (corners - self.origin) @ self.basis  # (m, 2)
+        self.edges_to = np.roll(self.polygon, -1, axis=0)  # each edge's other end
+
+    def hides(self, eye_w: np.ndarray, points_w: np.ndarray) -> np.ndarray:
+        """(n,) bool: the segment from ``eye_w`` (3,) to each of ``points_w`` (n, 3) crosses the outline's plane
+        inside the outline (the even-odd rule)."""
+        points_w = np.asarray(points_w, dtype=float).reshape(-1, 3)
+        out = np.zeros(len(points_w), dtype=bool)
+        if self.polygon is None:
+            return out
+        d0 = float(self.normal @ (eye_w - self.origin))
+        d1 = (points_w - self.origin) @ self.normal
+        crossing = np.flatnonzero(d0 * d1 < 0.0)  # else both on one side (or one on the plane): not between them
+        if not len(crossing):
+            return out
+        lam = d0 / (d0 - d1[crossing])
+        xy = (eye_w + lam[:, None] * (points_w[crossing] - eye_w) - self.origin) @ self.basis  # (k, 2) in the plane
+        (x0, y0), (x1, y1) = self.polygon.T, self.edges_to.T
+        x, y = xy[:, :1], xy[:, 1:]
+        spans = (y0 > y) != (y1 > y)  # (k, m): the edges the line through the point parallel to the basis' x crosses
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x_cross = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+        out[crossing] = np.count_nonzero(spans & (x < x_cross), axis=1) % 2 == 1
+        return out
+
+
+def _rim_w(hole: HoleSpec) -> np.ndarray:
+    """The disc's rim at :data:`_MARK_RIM_POINTS` points (m, 3) in its frame."""
+    n = np.asarray(hole.normal_w, dtype=float)
+    n = n / np.linalg.norm(n)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(n, helper)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+    t = np.linspace(0.0, 2.0 * np.pi, _MARK_RIM_POINTS, endpoint=False)
+    return hole.center_w + hole.radius_mm * (np.cos(t)[:, None] * e1 + np.sin(t)[:, None] * e2)
+
+
+def _normalized_reach(lens: CameraModel) -> np.ndarray:
+    """(2,) the largest |x|, |y| of the image's corners and edge midpoints in ideal normalised coordinates."""
+    w, h = lens.width - 0.5, lens.height - 0.5
+    border = np.array([[-0.5, -0.5], [w, -0.5], [w, h], [-0.5, h], [lens.cx, -0.5], [lens.cx, h], [-0.5, lens.cy],
+                       [w, lens.cy]])
+    return np.abs(lens.undistort_pixels(border)).max(axis=0)
 
 
 def _first_in_image(cell: SimCell, T_c_w: np.ndarray, holes: list[HoleSpec]) -> tuple[float, float]:

@@ -4,6 +4,10 @@ Every simulated device reads a :class:`SimCell`: the camera renders the part at 
 the tracker measures the SMR nests the cell lists. Because the truth is known, a simulated run can say
 how far any result is from the perfect one (:meth:`SimCell.T_s1_w_true`). Everything random is drawn
 from the cell's seeded generator unless a generator is passed in.
+
+The cell's fixed reference marks (:class:`SimMark`, the config's ``[[reference_marks]]``) are seen by both: the
+camera renders each as a dark disc where it lies, unless the current part's sheet (its ``outline_w``) hides it
+(:mod:`monoguide.drivers.sim.camera`), and each has a hidden-point SMR nest under its name for the tracker.
 """
 
 from __future__ import annotations
@@ -39,6 +43,18 @@ class SimTarget:
     points_t: np.ndarray
 
 
+@dataclass(frozen=True, eq=False)
+class SimMark:
+    """A fixed reference mark of the cell (``[[reference_marks]]``): a dark disc of ``radius_mm`` on a light ground,
+    centred at ``position_cf`` (3,) mm in the cell frame, in the plane of unit normal ``normal_cf`` (3,) (towards the
+    cameras). Its SMR nest is a hidden-point nest: an SMR set in it has its centre at the mark's centre."""
+
+    name: str
+    position_cf: np.ndarray
+    radius_mm: float
+    normal_cf: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+
+
 @dataclass(frozen=True)
 class SimPartType:
     """One part type the simulated line supplies (the config's ``[[parts]]``): its holes, its reference, and the
@@ -50,6 +66,7 @@ class SimPartType:
     T_cf_w0: np.ndarray
     point_names: tuple[str, ...]
     first_pose: int = 1
+    outline_w: np.ndarray | None = None  # (m, 3) its outer edge in the part frame (hides the marks behind it)
 
 
 @dataclass(frozen=True)
@@ -59,7 +76,9 @@ class SimCellSpec:
     ``T_cf_si`` are the calibrated measuring poses; the simulated robot's taught flange poses follow from
     them, the robot base ``T_cf_b`` and the true camera mounting ``T_f_c``. Deviation ranges are +- per
     axis of the part frame (translation mm; rotation deg about the centroid of ``points_w``).
-    Repeatability is a per-axis standard deviation at the flange.
+    Repeatability is a per-axis standard deviation at the flange. ``marks`` are the cell's fixed reference marks;
+    ``outline_w`` the current part's outer edge (a polygon in the part frame, None: not given), behind which the
+    camera does not see a mark.
     """
 
     camera: CameraModel
@@ -87,6 +106,8 @@ class SimCellSpec:
     aperture_mm: float = 0.0  # entrance pupil diameter: defocus grows with it away from the focus plane
     target_marks: TargetMarks | None = None  # the calibration targets' circular marks; None: the default target's
     part_types: tuple[SimPartType, ...] = ()  # every part type of the cell; the fields above hold the current one's
+    marks: tuple[SimMark, ...] = ()  # the cell's fixed reference marks (on the fixture, beside the part)
+    outline_w: np.ndarray | None = None  # (m, 3) the current part's outer edge in the part frame; None: not given
 
 
 @dataclass
@@ -159,7 +180,7 @@ class SimCell:
             return
         part = self.part_type(job)
         self.spec = replace(self.spec, points_w=part.points_w, hole_radius_mm=part.hole_radius_mm,
-                            T_cf_w0=part.T_cf_w0, point_names=part.point_names, T_w_g=None)
+                            T_cf_w0=part.T_cf_w0, point_names=part.point_names, T_w_g=None, outline_w=part.outline_w)
         self.part_job = job
 
     def part_type(self, job: int) -> SimPartType:
@@ -300,9 +321,11 @@ class SimCell:
 
     def smr_positions(self) -> dict[str, np.ndarray]:
         """Every nest the tracker can measure, in the cell frame (mm): the benchmarks, the calibration
-        targets' points (``T1.1``, ...), the featured holes of the current part (``P1``, ...) and the SMR on
-        the flange tool (``TCP``) at the robot's actual pose. With a :class:`SimScene`, only the targets placed
-        (where they lie) and the flange SMR only when mounted."""
+        targets' points (``T1.1``, ...), the featured holes of the current part (``P1``, ...), the reference
+        marks (under each mark's name: its nest is a hidden-point nest, the SMR's centre at the mark's centre,
+        ``SimMark.position_cf``) and the SMR on the flange tool (``TCP``) at the robot's actual pose. With a
+        :class:`SimScene`, only the targets placed (where they lie) and the flange SMR only when mounted; the
+        marks are fixed in the cell, always there."""
         s = self.spec
         out = {name: np.asarray(p, dtype=float).copy() for name, p in s.benchmarks_cf.items()}
         for i, target in enumerate(s.targets):
@@ -313,13 +336,18 @@ class SimCell:
                 out[f"{target.name}.{k + 1}"] = p
         names = s.point_names or tuple(f"P{k + 1}" for k in range(len(s.points_w)))
         out.update(zip(names, self.points_cf_true(), strict=True))
+        for mark in s.marks:
+            if mark.name in out or mark.name == FLANGE_NEST:
+                raise ValueError(f"reference mark {mark.name!r}: the tracker has another nest of that name")
+            out[mark.name] = np.asarray(mark.position_cf, dtype=float).reshape(3).copy()
         if s.tool_smr_f is not None and (self.scene is None or self.scene.flange_smr):
             T_cf_f = compose(s.T_cf_b, self.actual_flange_pose())
             out[FLANGE_NEST] = transform_points(T_cf_f, np.asarray(s.tool_smr_f, dtype=float).reshape(1, 3))[0]
         return out
 
     def tracker_targets(self) -> dict[str, np.ndarray]:
-        """:meth:`smr_positions` in the tracker's own frame, as the tracker measures them."""
+        """:meth:`smr_positions` in the tracker's own frame, as the tracker measures them (a reference mark's
+        under its name: the centre of the SMR in its hidden-point nest, which is the mark's centre)."""
         T_tracker_cf = invert(self.spec.T_cf_tracker)
         return {k: transform_points(T_tracker_cf, p.reshape(1, 3))[0] for k, p in self.smr_positions().items()}
 
