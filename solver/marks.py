@@ -55,6 +55,16 @@ MAX_ITERATIONS = 30
 STEP_RAD, STEP_MM = 1e-9, 1e-6
 
 
+def shift_mm(e: np.ndarray) -> float:
+    """The translation's length of a camera correction ``e = (w rad, d mm)``, mm."""
+    return float(np.linalg.norm(e[3:]))
+
+
+def turn_deg(e: np.ndarray) -> float:
+    """The rotation's angle of a camera correction ``e = (w rad, d mm)``, deg."""
+    return math.degrees(float(np.linalg.norm(e[:3])))
+
+
 @dataclass(frozen=True)
 class CameraCorrection:
     """Where one view's camera stood, relative to its calibrated pose: ``correction`` (6,) = (w rad, d mm) in its
@@ -68,11 +78,11 @@ class CameraCorrection:
 
     @property
     def mm(self) -> float:
-        return float(np.linalg.norm(self.correction[3:]))
+        return shift_mm(self.correction)
 
     @property
     def deg(self) -> float:
-        return math.degrees(float(np.linalg.norm(self.correction[:3])))
+        return turn_deg(self.correction)
 
 
 @dataclass

@@ -26,6 +26,7 @@ import numpy as np
 from monoguide.solver import frames
 from monoguide.solver.camera import CameraModel
 from monoguide.solver.consistency import chi2_threshold
+from monoguide.solver.marks import shift_mm, turn_deg
 from monoguide.solver.marks_problem import MIN_MARKS_PER_VIEW, ReferenceMark
 
 CHECK_FALSE_ALARM_RATE = 1e-3  # per check: one good check in 1,000 fails
@@ -44,17 +45,9 @@ class CameraCheck:
     dof: int
     threshold: float
 
-    @property
-    def mm(self) -> float:
-        return float(np.linalg.norm(self.correction[3:]))
-
-    @property
-    def deg(self) -> float:
-        return math.degrees(float(np.linalg.norm(self.correction[:3])))
-
-    @property
-    def passed(self) -> bool:
-        return self.statistic <= self.threshold
+    mm = property(lambda self: shift_mm(self.correction))
+    deg = property(lambda self: turn_deg(self.correction))
+    passed = property(lambda self: self.statistic <= self.threshold)
 
     def as_dict(self) -> dict[str, object]:
         return {"view": self.view, "marks": self.marks, "mm": round(self.mm, 5), "deg": round(self.deg, 6),
@@ -74,13 +67,8 @@ class CamerasCheck:
     threshold: float
     common: np.ndarray  # (6,) its estimate (w rad, d mm), camera axes
 
-    @property
-    def common_mm(self) -> float:
-        return float(np.linalg.norm(self.common[3:]))
-
-    @property
-    def common_deg(self) -> float:
-        return math.degrees(float(np.linalg.norm(self.common[:3])))
+    common_mm = property(lambda self: shift_mm(self.common))
+    common_deg = property(lambda self: turn_deg(self.common))
 
     @property
     def passed(self) -> bool:

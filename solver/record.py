@@ -14,18 +14,17 @@ from monoguide.solver import frames
 from monoguide.solver.camera import CameraModel
 from monoguide.solver.envelope import DeviationEnvelope
 from monoguide.solver.errors import (
-    MissingKey,
     MonoguideError,
     NonFiniteValue,
     PointBehindCamera,
     RecordError,
-    UnknownKey,
     UnknownReference,
     UnsupportedFormat,
 )
 from monoguide.solver.offset import PartDisplacement, check_envelope, describe_displacement
 from monoguide.solver.pose import DEFAULT_FALSE_ALARM_RATE, PoseResult, solve_pose
 from monoguide.solver.problem import PoseProblem
+from monoguide.solver.record_keys import check_keys
 from monoguide.solver.record_marks import MARKS_KEYS, RecordMarks, camera_deviation, parse_marks, solve_record_marks
 
 FORMAT = "monoguide.measurement/1"
@@ -132,7 +131,7 @@ def _parse_record(data: Any) -> MeasurementRecord:
         raise RecordError(f"a record must be a JSON object, got {type(data).__name__}")
     if data.get("format") != FORMAT:
         raise UnsupportedFormat(f"format: expected {FORMAT!r}, got {data.get('format')!r}")
-    _check_keys(data, REQUIRED_KEYS, OPTIONAL_KEYS, "")
+    check_keys(data, REQUIRED_KEYS, OPTIONAL_KEYS, "")
     record_id = data.get("id")
     if record_id is not None and not isinstance(record_id, str):
         raise RecordError(f"id: expected a string or null, got {record_id!r}")
@@ -147,7 +146,7 @@ def _parse_record(data: Any) -> MeasurementRecord:
     if not isinstance(views, list) or not views:
         raise RecordError(f"views: expected a non-empty list, got {views!r}"[:200])
     for i, view in enumerate(views):
-        _check_keys(view, VIEW_KEYS, VIEW_OPTIONAL_KEYS, f"views[{i}]")
+        check_keys(view, VIEW_KEYS, VIEW_OPTIONAL_KEYS, f"views[{i}]")
         if view.get("name") is not None and (not isinstance(view["name"], str) or not view["name"].strip()):
             raise RecordError(f"views[{i}].name: expected a non-empty string, got {view['name']!r}"[:200])
     view_names = tuple(view.get("name") or f"S{i + 1}" for i, view in enumerate(views))
@@ -166,7 +165,7 @@ def _parse_record(data: Any) -> MeasurementRecord:
     view_sigma_mm = view_sigma_deg = 0.0
     if data.get("view_sigma") is not None:
         view_sigma = data["view_sigma"]
-        _check_keys(view_sigma, VIEW_SIGMA_KEYS, (), "view_sigma")
+        check_keys(view_sigma, VIEW_SIGMA_KEYS, (), "view_sigma")
         view_sigma_mm = _positive(view_sigma["mm"], "view_sigma.mm", allow_zero=True)
         view_sigma_deg = _positive(view_sigma["deg"], "view_sigma.deg", allow_zero=True)
     problem = PoseProblem(
@@ -185,7 +184,7 @@ def _parse_record(data: Any) -> MeasurementRecord:
     T_b_s1 = None if data.get("T_b_s1") is None else _transform(data["T_b_s1"], "T_b_s1")
     truth_T_s1_w = truth_base_offset = None
     if data.get("truth") is not None:
-        _check_keys(data["truth"], TRUTH_KEYS, TRUTH_OPTIONAL_KEYS, "truth")
+        check_keys(data["truth"], TRUTH_KEYS, TRUTH_OPTIONAL_KEYS, "truth")
         truth_T_s1_w = _transform(data["truth"]["T_s1_w"], "truth.T_s1_w")
         if data["truth"].get("base_offset") is not None:
             truth_base_offset = _transform(data["truth"]["base_offset"], "truth.base_offset")
@@ -238,19 +237,6 @@ def error_to_dict(record_id: str | None, error: MonoguideError) -> dict:
 # --- private helpers ----------------------------------------------------------------------------
 
 
-def _check_keys(data: Any, required: tuple[str, ...], optional: tuple[str, ...], where: str) -> None:
-    """``data`` must be an object with every ``required`` key and no key outside ``required + optional``."""
-    if not isinstance(data, dict):
-        raise RecordError(f"{where or 'record'}: expected an object, got {data!r}"[:200])
-    known = required + optional
-    for key in data:
-        if key not in known:
-            raise UnknownKey.naming(str(key), known, where)
-    for key in required:
-        if key not in data:
-            raise MissingKey(f"{where + '.' if where else ''}{key}: missing")
-
-
 def _consistency(record: MeasurementRecord, result: PoseResult) -> dict:
     """The chi-square test the result passed, with the centre noise it was held against (the record's
     ``sigma_px`` or the default, so that a reader sees which)."""
@@ -267,12 +253,12 @@ def _envelope(value: Any, grasp_point_w: np.ndarray) -> DeviationEnvelope:
         if mixed:
             raise RecordError(f"envelope: {', '.join(mixed)} beside the old form's keys (mm, deg, axis_mm, "
                               "axis_deg): give one form")
-        _check_keys(value, OLD_ENVELOPE_KEYS, OLD_ENVELOPE_OPTIONAL_KEYS, "envelope")
+        check_keys(value, OLD_ENVELOPE_KEYS, OLD_ENVELOPE_OPTIONAL_KEYS, "envelope")
         total_mm, total_deg = _positive(value["mm"], "envelope.mm"), _positive(value["deg"], "envelope.deg")
         return DeviationEnvelope(_limits(value, "axis_mm", (total_mm,) * 3),
                                  _limits(value, "axis_deg", (total_deg,) * 3),
                                  tuple(float(v) for v in grasp_point_w), total_mm, total_deg)
-    _check_keys(value, ENVELOPE_KEYS, ENVELOPE_OPTIONAL_KEYS, "envelope")
+    check_keys(value, ENVELOPE_KEYS, ENVELOPE_OPTIONAL_KEYS, "envelope")
     about_w = None if value.get("about_w") is None else _matrix([value["about_w"]], "envelope.about_w", columns=3)[0]
     totals = [None if value.get(key) is None else _positive(value[key], f"envelope.{key}")
               for key in ("total_mm", "total_deg")]
@@ -342,7 +328,7 @@ def _observations(value: Any, n_views: int, n_points: int) -> tuple[np.ndarray, 
     views, points, pixels, seen = [], [], [], set()
     for j, obs in enumerate(value):
         where = f"observations[{j}]"
-        _check_keys(obs, OBSERVATION_KEYS, (), where)
+        check_keys(obs, OBSERVATION_KEYS, (), where)
         view, point = obs["view"], obs["point"]
         for name, index, count in (("view", view, n_views), ("point", point, n_points)):
             if isinstance(index, bool) or not isinstance(index, int):

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from monoguide.solver.errors import MissingKey, NonFiniteValue, RecordError, UnknownKey, UnknownReference
+from monoguide.solver.errors import MissingKey, NonFiniteValue, RecordError, UnknownReference
 from monoguide.solver.marks import MarksResult, fit_marks
 from monoguide.solver.marks_check import (
     DEFAULT_MARKS_FALSE_ALARM_RATE,
@@ -27,6 +27,7 @@ from monoguide.solver.marks_check import (
 from monoguide.solver.marks_problem import CALIBRATION_SIGMA_DEG, CALIBRATION_SIGMA_MM, MarksProblem, ReferenceMark
 from monoguide.solver.pose import DEFAULT_FALSE_ALARM_RATE, PoseResult
 from monoguide.solver.problem import PoseProblem
+from monoguide.solver.record_keys import check_keys
 
 MARKS_KEYS = ("marks", "mark_observations", "calibration_sigma")  # optional top-level keys of the record
 MARK_KEYS, MARK_OPTIONAL_KEYS = ("name", "position_s1"), ("sigma_mm",)
@@ -67,7 +68,7 @@ def parse_marks(data: dict[str, Any], n_views: int, view_names: tuple[str, ...])
         raise RecordError(f"marks: expected a non-empty list, got {marks_value!r}"[:200])
     marks = []
     for i, m in enumerate(marks_value):
-        _keys(m, MARK_KEYS, MARK_OPTIONAL_KEYS, f"marks[{i}]")
+        check_keys(m, MARK_KEYS, MARK_OPTIONAL_KEYS, f"marks[{i}]")
         name = m["name"]
         if not isinstance(name, str) or not name.strip():
             raise RecordError(f"marks[{i}].name: expected a non-empty string, got {name!r}"[:200])
@@ -80,7 +81,7 @@ def parse_marks(data: dict[str, Any], n_views: int, view_names: tuple[str, ...])
     views, index, pixels = [], [], []
     for j, o in enumerate(observations):
         where = f"mark_observations[{j}]"
-        _keys(o, MARK_OBSERVATION_KEYS, (), where)
+        check_keys(o, MARK_OBSERVATION_KEYS, (), where)
         for key, count in (("view", n_views), ("mark", len(marks))):
             value = o[key]
             if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < count:
@@ -90,7 +91,7 @@ def parse_marks(data: dict[str, Any], n_views: int, view_names: tuple[str, ...])
         pixels.append(_numbers(o["pixel"], 2, f"{where}.pixel"))
     sigma_mm, sigma_deg = CALIBRATION_SIGMA_MM, CALIBRATION_SIGMA_DEG
     if data.get("calibration_sigma") is not None:
-        _keys(data["calibration_sigma"], CALIBRATION_SIGMA_KEYS, (), "calibration_sigma")
+        check_keys(data["calibration_sigma"], CALIBRATION_SIGMA_KEYS, (), "calibration_sigma")
         sigma_mm = _positive(data["calibration_sigma"]["mm"], "calibration_sigma.mm")
         sigma_deg = _positive(data["calibration_sigma"]["deg"], "calibration_sigma.deg")
     return RecordMarks(tuple(marks), np.array(views, dtype=int), np.array(index, dtype=int),
@@ -145,29 +146,6 @@ def camera_deviation(result: MarksResult) -> list[dict[str, Any]]:
                 entry.update(tolerance_mm=round(scale * mm, 6), tolerance_deg=round(scale * deg, 7))
         out.append(entry)
     return out
-
-
-def marks_to_record(marks: RecordMarks) -> dict[str, Any]:
-    """The record's ``marks`` and ``mark_observations`` (and ``calibration_sigma``) for ``marks``."""
-    return {
-        "marks": [{"name": m.name, "position_s1": [float(x) for x in m.position_cf], "sigma_mm": m.sigma_mm}
-                  for m in marks.marks],
-        "mark_observations": [{"view": int(v), "mark": int(m), "pixel": [float(p[0]), float(p[1])]}
-                              for v, m, p in zip(marks.mark_view, marks.mark_index, marks.mark_pixels, strict=True)],
-        "calibration_sigma": {"mm": marks.calibration_sigma_mm, "deg": marks.calibration_sigma_deg},
-    }
-
-
-def _keys(data: Any, required: tuple[str, ...], optional: tuple[str, ...], where: str) -> None:
-    if not isinstance(data, dict):
-        raise RecordError(f"{where}: expected an object, got {data!r}"[:200])
-    known = required + optional
-    for key in data:
-        if key not in known:
-            raise UnknownKey.naming(str(key), known, where)
-    for key in required:
-        if key not in data:
-            raise MissingKey(f"{where}.{key}: missing")
 
 
 def _numbers(value: Any, n: int, where: str) -> np.ndarray:

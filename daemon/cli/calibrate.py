@@ -1,6 +1,7 @@
 """`monoguide calibrate [STEP]`: the calibration wizard (docs/calibration.md, "monoguide calibrate").
 
-Seven steps (:data:`~monoguide.daemon.calibrate.STEPS`), each measured on the cell with the laser tracker, the
+Eight steps (:data:`~monoguide.daemon.calibrate.STEPS`; ``marks`` only in a cell with ``[[reference_marks]]``), each
+measured on the cell with the laser tracker, the
 robot and the camera while the person at the cell is told what to do; every finished step and every refusal goes
 into the session file at once, so an interrupted wizard resumes at the first step not done. When all are done
 the calibration is written into the cell config (the previous one kept) with a report. ``--sim`` calibrates the

@@ -37,6 +37,7 @@ import numpy as np
 from monoguide.daemon.config._calibration import (
     CalibrationTargetConfig,
     CellFrameConfig,
+    cell_calibration_gap,
     part_calibration_gap,
     read_calibration,
     read_calibration_target,
@@ -133,6 +134,12 @@ class CellConfig:
         """Why part type ``job`` is not calibrated in this calibrated cell (missing steps, or the cell recalibrated
         since), or ``None``: its jobs are refused with ``PART_NOT_CALIBRATED`` while there is one."""
         return part_calibration_gap(self.calibration, job, self.jobs)
+
+    def cell_calibration_gap(self) -> str | None:
+        """Why the cell's own calibration is incomplete in a calibrated cell (its reference marks never surveyed, or
+        surveyed before the cell frame was redone), or ``None``: every job is refused with ``PART_NOT_CALIBRATED``
+        while there is one."""
+        return cell_calibration_gap(self.calibration, bool(self.reference_marks))
 
     def taught_flange_poses(self) -> tuple[np.ndarray, ...]:
         """``T_b_f`` of each measuring pose of this part type: as taught, else from its calibrated camera pose (empty

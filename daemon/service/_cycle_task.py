@@ -100,7 +100,11 @@ class Runners:
         return self.config.jobs
 
     def check_calibrated(self, job: int) -> None:
-        """:class:`PartNotCalibrated` for a part type the wizard has not calibrated in a calibrated cell."""
+        """:class:`PartNotCalibrated` for a part type the wizard has not calibrated in a calibrated cell, and for every
+        job of a calibrated cell whose reference marks were not surveyed in its cell frame."""
+        if (gap := self.config.cell_calibration_gap()) is not None:
+            raise PartNotCalibrated(f"job {job}: the cell's calibration in {self.config.path} is incomplete: {gap}; "
+                                    f"nothing moved (monoguide calibrate marks --config {self.config.path})")
         if (gap := self.config.calibration_gap(job)) is not None:
             part = self.config.for_job(job)
             raise PartNotCalibrated(f"job {job} ({part.part_name}): not calibrated in {self.config.path}: {gap}; "

@@ -193,3 +193,23 @@ def test_a_mark_hidden_by_a_bad_part_refuses_the_cycle_naming_the_mark() -> None
         r.runner.close()
     assert isinstance(refused.value, MarkNotFound), refused.value
     assert "mark S1-M" in refused.value.message and "hiding it" in refused.value.message
+
+
+def test_a_calibrated_cell_whose_marks_were_never_surveyed_refuses_every_job(tmp_path: Path) -> None:
+    from monoguide.daemon.errors import PartNotCalibrated
+    from monoguide.daemon.service._cycle_task import Runners
+
+    text = MARKS_CELL.read_text() + (
+        '\n[calibration]\ndate = "2026-11-30T10:00:00+00:00"\n'
+        '[calibration.steps]\ncell = { done = "2026-11-30T09:00:00+00:00", rms_mm = 0.02 }\n')
+    path = tmp_path / "cell.toml"
+    path.write_text(text)
+    runners = Runners(load_cell_config(path), lambda *a: None)
+    with pytest.raises(PartNotCalibrated) as refused:
+        runners.check_calibrated(1)
+    assert "step marks missing" in refused.value.message and "nothing moved" in refused.value.message
+    surveyed = text.replace('cell = { done = "2026-11-30T09:00:00+00:00", rms_mm = 0.02 }',
+                            'cell = { done = "2026-11-30T09:00:00+00:00", rms_mm = 0.02 }\n'
+                            'marks = { done = "2026-11-30T09:30:00+00:00", marks = 12 }')
+    path.write_text(surveyed)
+    assert load_cell_config(path).cell_calibration_gap() is None
