@@ -75,11 +75,16 @@ def _run(cfg: CellConfig, directory: Path, json_out: bool) -> int:
             camera.open()
             robot.open()
             with CycleRunner(first, camera, robot) as runner:
-                say(out, f"check: the reference part of job {first.job} ({first.part_name}), "
-                                      f"{len(first.measuring_poses)} measuring poses")
-                measurement = runner.measure(first.job, threading.Event(), lambda: CycleAborted("check aborted"),
+                say(out, f"check: job {first.job} ({first.part_name}), {len(first.measuring_poses)} measuring poses, "
+                         + ("the reference marks alone" if runner.has_marks else
+                            f"the reference part, {runner.checks.check_visits} visits"))
+                abort = threading.Event()
+                measurement = runner.measure(first.job, abort, lambda: CycleAborted("check aborted"),
                                              holes=not runner.has_marks)
-                solution, found = solve_and_check(runner, measurement)
+                visits = 1 if runner.has_marks else runner.checks.check_visits
+                more = [runner.measure(first.job, abort, lambda: CycleAborted("check aborted"))
+                        for _ in range(visits - 1)]
+                solution, found = solve_and_check(runner, measurement, *more)
         except MonoguideError as exc:
             error = exc
         finally:

@@ -39,6 +39,7 @@ BOUNDS: dict[str, Bounds] = {
     "service.images_max_mb": Bounds(1.0, 10_000_000.0, "MB"),
     "service.images_max_age_days": Bounds(0.01, 3650.0, "days"),
     "sim.exposure_us_nominal": Bounds(1.0, 10_000_000.0, "us"),
+    "checks.check_visits": Bounds(1, 50),  # each visit: every measuring pose once
     "parts.job": Bounds(1, 65534),  # PLC register 1 (a uint16; 0 is no job, 65535 the check job)
     "calibration_target.marks_cols": Bounds(2, 1000),
     "calibration_target.marks_rows": Bounds(2, 1000),

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from monoguide.daemon.config._bounds import bounded_number
+from monoguide.daemon.config._bounds import bounded_integer, bounded_number
 from monoguide.daemon.config._reader import ConfigTable
 from monoguide.drivers.errors import ConfigError
 from monoguide.solver.envelope import DeviationEnvelope
@@ -41,6 +41,7 @@ class ChecksConfig:
     max_sigma_deg: float = 0.1  # predicted sigma of the rotation above this: UNCERTAINTY_TOO_LARGE
     false_alarm_rate: float = 1e-3  # the consistency test's (INCONSISTENT_MEASUREMENT)
     marks_false_alarm_rate: float = 1e-4  # the reference marks' tolerance, per cycle (CALIBRATION_SUSPECT)
+    check_visits: int = 6  # visits of the measuring poses by the check job of a cell without marks
     envelope_mm: float | None = None  # the grasp point's shift in total, mm
     envelope_deg: float | None = None  # the rotation angle, deg
     envelope_axis_mm: tuple[float, float, float] | None = None  # per axis of the reference part frame
@@ -74,6 +75,7 @@ def read_checks(t: ConfigTable) -> ChecksConfig:
         max_sigma_deg=t.number("max_sigma_deg", 0.1, positive=True),
         false_alarm_rate=rate,
         marks_false_alarm_rate=marks_rate,
+        check_visits=bounded_integer(t, "check_visits", 6),
         envelope_mm=t.number("envelope_mm", None, positive=True),
         envelope_deg=t.number("envelope_deg", None, positive=True),
         envelope_axis_mm=None if axis_mm is None else tuple(float(v) for v in axis_mm),

@@ -189,8 +189,13 @@ class CycleTask:
         from monoguide.daemon.cycle._check import solve_and_check
 
         number, at = self.journal.next_number(), datetime.now(UTC).isoformat(timespec="seconds")
+        more = []
+        if outcome.measurement.parsed is not None:  # the reference part: the poses visited again, averaged together
+            for _ in range(max(getattr(getattr(runner, "checks", None), "check_visits", 1), 1) - 1):
+                more.append(await self._stage(runner.measure, outcome.measurement.job, self.abort.event,
+                                              lambda: self.abort.error))
         try:
-            outcome.solution, found = await self._stage(solve_and_check, runner, outcome.measurement)
+            outcome.solution, found = await self._stage(solve_and_check, runner, outcome.measurement, *more)
             self.machine.fire(Cause.POSE_SOLVED)
         except CalibrationSuspect as failed:
             if self.health is not None:

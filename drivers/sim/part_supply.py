@@ -1,7 +1,8 @@
 """The simulated cell's part supply, run by the simulated robot controller (``docs/probe.md``).
 
 Every cycle starts with a new part: when the first measuring pose of the next part's type is requested (S1 for
-the roof), the part in the cell is replaced by part ``n + 1``, deviated from its type's reference by a draw
+the roof), the part in the cell is replaced by part ``n + 1`` (but the reference part of ``robot reference-part``,
+which stays until it is grasped: a check job's every visit finds it), deviated from its type's reference by a draw
 inside its envelope (:func:`monoguide.solver.envelope.draw_deviation`: the envelope's one definition, per axis
 and in total about the type's point ``about_w``; the limits ``[sim.deviation]``'s unless the type gives its
 own) seeded with ``([sim] seed, PART_STREAM, n + 1)`` — the same config gives the same
@@ -90,7 +91,12 @@ class PartSupply:
         return pose_number == first
 
     def arrive(self) -> np.ndarray:
-        """The current part leaves, the next one arrives; returns its true pose in the robot base frame."""
+        """The current part leaves, the next one arrives; returns its true pose in the robot base frame. The reference
+        part stays in its nest until the robot grasps it (an offset applied): a check job visits the measuring poses
+        several times, and every visit finds it where it lay."""
+        if self.reference and not self._logged:
+            log.info("part %d (the reference part) stays for another visit", self.part)
+            return self.T_b_w
         self.close()
         self.job = self.next_job if self.types else self.job
         self.part += 1

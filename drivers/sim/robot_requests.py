@@ -13,7 +13,7 @@ import numpy as np
 
 FAULT_MODES = ("none", "stall", "drop", "protective-stop", "never-reach", "no-ack", "program-stopped")
 # one-shot: they act once, and leave the mode in force as it was; ``reference-part``: the part supply's next part is
-# the reference part, exactly as taught (a check job measures it)
+# the reference part, exactly as taught, and it stays until grasped (a check job measures it, visit after visit)
 FAULT_ACTIONS = ("restart", "cut-after-offset", "reference-part")
 CUT_DOWN_S = 1.0  # cut-after-offset: how long new connections are closed at once (default)
 MAX_CUT_MS = 60_000.0
