@@ -56,8 +56,9 @@ RANGES: list[tuple[str, str, float, float, str, Any]] = [
     ("sim", "exposure_us_nominal", 1, 10_000_000, "1 to 10000000 us", lambda c: c.sim.exposure_us_nominal),
     ("calibration_target", "marks_cols", 2, 1000, "2 to 1000", lambda c: _marks_along(c, 0)),
     ("calibration_target", "marks_rows", 2, 1000, "2 to 1000", lambda c: _marks_along(c, 1)),
+    ("checks", "check_visits", 1, 50, "1 to 50", lambda c: c.checks.check_visits),
 ]
-INTEGER_KEYS = {"width", "height", "baud", "port", "unit", "base", "marks_cols", "marks_rows"}
+INTEGER_KEYS = {"width", "height", "baud", "port", "unit", "base", "marks_cols", "marks_rows", "check_visits"}
 RANGE_IDS = [f"{section}.{key}" for section, key, *_ in RANGES]
 
 
