@@ -127,6 +127,7 @@ def test_the_wizard_refuses_a_part_session_without_the_cell_and_cell_steps_by_jo
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(600)  # two wizard sessions, ~100 s on 2 idle cores; each run has its own 300 s limit
 def test_the_hood_is_calibrated_in_its_own_session_against_the_truth(tmp_path: Path) -> None:
     work = tmp_path / "work"
     cell = _calibrate(work, *SMALL)

@@ -17,6 +17,7 @@ MONOGUIDE = [sys.executable, "-m", "monoguide.daemon.cli"]
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(400)  # the simulate run (~45 s on 2 idle cores) has its own 900 s limit
 def test_a_bumped_camera_in_a_cell_with_marks_is_refused_every_cycle_and_health_sees_it(tmp_path: Path) -> None:
     work = tmp_path / "run"
     done = subprocess.run([*MONOGUIDE, "simulate", "--json", "--jobs", "1", "--seed", "5", "-c",
