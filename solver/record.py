@@ -189,7 +189,7 @@ def _parse_record(data: Any) -> MeasurementRecord:
         if data["truth"].get("base_offset") is not None:
             truth_base_offset = _transform(data["truth"]["base_offset"], "truth.base_offset")
     envelope = _envelope(data.get("envelope"), grasp_point_w).at(points_w)
-    marks = parse_marks(data, len(views), view_names)
+    marks = parse_marks(data, len(views), view_names, camera)
     return MeasurementRecord(record_id, problem, grasp_point_w, envelope, T_b_s1, truth_T_s1_w, truth_base_offset,
                              marks, view_names)
 

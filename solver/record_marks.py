@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from monoguide.solver.camera import CameraModel
 from monoguide.solver.errors import MissingKey, NonFiniteValue, RecordError, UnknownReference
 from monoguide.solver.marks import MarksResult, fit_marks
 from monoguide.solver.marks_check import (
@@ -57,8 +58,10 @@ class RecordMarks:
         return replace(self, mark_pixels=np.asarray(pixels, dtype=float).reshape(-1, 2))
 
 
-def parse_marks(data: dict[str, Any], n_views: int, view_names: tuple[str, ...]) -> RecordMarks | None:
-    """The record's marks, or None when it has none; :class:`RecordError` subclasses naming the bad field."""
+def parse_marks(data: dict[str, Any], n_views: int, view_names: tuple[str, ...],
+                camera: CameraModel | None = None) -> RecordMarks | None:
+    """The record's marks, or None when it has none; :class:`RecordError` subclasses naming the bad field (with
+    ``camera``, a sighting outside its image too)."""
     if data.get("marks") is None:
         if data.get("mark_observations"):
             raise MissingKey("marks: missing (the record has mark_observations)")
@@ -88,7 +91,11 @@ def parse_marks(data: dict[str, Any], n_views: int, view_names: tuple[str, ...])
                 raise UnknownReference(f"{where}.{key}: {value!r} is not one of the record's {count} {key}s"[:200])
         views.append(o["view"])
         index.append(o["mark"])
-        pixels.append(_numbers(o["pixel"], 2, f"{where}.pixel"))
+        pixel = _numbers(o["pixel"], 2, f"{where}.pixel")
+        if camera is not None and not camera.in_image(pixel[None])[0]:
+            raise RecordError(f"{where}.pixel: {pixel.tolist()} lies outside the {camera.width} x {camera.height} "
+                              "image")
+        pixels.append(pixel)
     sigma_mm, sigma_deg = CALIBRATION_SIGMA_MM, CALIBRATION_SIGMA_DEG
     if data.get("calibration_sigma") is not None:
         check_keys(data["calibration_sigma"], CALIBRATION_SIGMA_KEYS, (), "calibration_sigma")

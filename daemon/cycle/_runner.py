@@ -39,6 +39,7 @@ import numpy as np
 
 from monoguide.daemon.config import CellConfig, ChecksConfig
 from monoguide.daemon.cycle._images import ImageWriter, image_path, wait_images
+from monoguide.daemon.cycle._marks import MARK_FINDERS, find_mark, plan_marks
 from monoguide.daemon.cycle._record import Capture, Measurement, RecordBuilder, Solution
 from monoguide.daemon.cycle._residual import Residual
 from monoguide.drivers.camera import Camera, CameraSettings, Frame
@@ -48,13 +49,12 @@ from monoguide.solver import frames
 from monoguide.solver.errors import (
     CalibrationSuspect,
     InconsistentMeasurement,
-    MarkNotFound,
     MonoguideError,
     ResidualTooLarge,
     UncertaintyTooLarge,
 )
 from monoguide.solver.hole_edges import bit_depth_of
-from monoguide.solver.holes import measure_hole, perspective_correction
+from monoguide.solver.holes import measure_hole
 from monoguide.solver.marks_problem import MIN_MARKS_PER_VIEW
 from monoguide.solver.offset import check_envelope
 from monoguide.solver.planning import DeviationEnvelope
@@ -71,12 +71,6 @@ log = logging.getLogger(__name__)
 _M_MMAP_THRESHOLD, _M_ARENA_MAX = -3, -8  # glibc mallopt(3) parameters
 MMAP_THRESHOLD_BYTES = 1 << 20
 MALLOC_ARENAS = 2
-# how far from where the calibration puts it a mark is sought (px, beyond its radius): 1.4 deg or 16 mm of the
-# camera at 650 mm on the simulated roof cell's lens, so that a camera knocked that far is measured (and refused,
-# CALIBRATION_SUSPECT), not lost (MARK_NOT_FOUND, refused all the same); a small region keeps each mark ~10 ms
-MARK_SEARCH_PX = 60.0
-MARK_FINDERS = 2  # threads finding a view's marks beside its holes (the last view's are on the overhead's path)
-MARK_SEARCH_PX = 60.0
 
 
 def tune_malloc() -> bool:
@@ -304,7 +298,8 @@ class CycleRunner:
         pose, view = self.config.measuring_poses[i], self._views[i]
         ox, oy = (self.settings.region or (0, 0, 0, 0))[:2]
         bits = bit_depth_of(frame.pixel_format)
-        marks = [self._mark_finder.submit(self._find_mark, pose.name, m, search, shift, frame, bits)
+        marks = [self._mark_finder.submit(find_mark, frame.image, search, shift, (ox, oy), bits,
+                                          f"{pose.name}, mark {self.config.reference_marks[m].name}")
                  for m, search, shift in zip(view.marks, view.mark_searches, view.mark_shifts, strict=True)]
         found: list[tuple[float, float]] = []
         try:
@@ -325,24 +320,6 @@ class CycleRunner:
         return Capture(i, T_b_f, None if path is None else str(path), first, tuple(found), tuple(found),
                        seen), seconds
 
-    def _find_mark(self, pose_name: str, m: int, search: HoleSearch, shift: tuple[float, float], frame: Frame,
-                   bits: int | None) -> tuple[float, float]:
-        """The image of mark ``m``'s centre in ``frame`` (its imaged circle's centre, corrected for perspective), or
-        :class:`MarkNotFound` naming it. A mark's rim is long (twice a hole's, ~200 edge points): its ellipse fit
-        alone is within 0.01 px of the rendered truth, the photometric refinement (7 ms a mark) adds nothing."""
-        ox, oy = (self.settings.region or (0, 0, 0, 0))[:2]
-        (ex, ey), (rx, ry, rw, rh) = search.expected_px, search.roi
-        try:
-            mark = measure_hole(frame.image, (ex - ox, ey - oy), search.radius_px, (rx - ox, ry - oy, rw, rh),
-                                max_offset_px=search.max_offset_px, bit_depth=bits, photometric=False)
-        except MonoguideError as exc:
-            name = self.config.reference_marks[m].name
-            raise MarkNotFound(f"{pose_name}, mark {name}: not found within {MARK_SEARCH_PX:g} px of where the "
-                               f"calibration puts it ({ex:.0f}, {ey:.0f}) px: {exc.code}: {exc.message}; is something "
-                               "(a part out of place, a cable) hiding it, or has the camera moved? Nothing is written "
-                               "to the robot.") from exc
-        return float(mark.center[0]) + ox - shift[0], float(mark.center[1]) + oy - shift[1]
-
     def _plan_view(self, i: int) -> _View:
         """Where pose ``i``'s holes are sought, over the whole deviation envelope (``ConfigError`` naming the
         pose and the point when one is nowhere in view)."""
@@ -359,22 +336,7 @@ class CycleRunner:
                 raise ConfigError(f"{cfg.path}: measuring pose {pose.name} does not see point {j} anywhere in "
                                   f"the deviation envelope")
             holes.append(search)
-        T_c_cf = frames.invert(pose.T_cf_si)
-        searches, shifts = [], []
-        for m in pose.marks:
-            mark = cfg.reference_marks[m]
-            search = hole_search(cfg.camera.intrinsics, T_c_cf, mark.position_cf, mark.normal_cf, mark.radius_mm,
-                                 np.eye(4)[None], margin_px=MARK_SEARCH_PX)
-            depth = float(frames.transform_points(T_c_cf, mark.position_cf[None])[0, 2])
-            if search is None or depth <= 0 or not cfg.camera.intrinsics.in_image(
-                    np.array([search.expected_px]), search.radius_px)[0]:
-                raise ConfigError(f"{cfg.path}: measuring pose {pose.name} lists mark {mark.name}, but its camera "
-                                  f"does not see it (position_cf {np.round(mark.position_cf, 1).tolist()}, depth "
-                                  f"{depth:.0f} mm): check [[reference_marks]] and the pose's marks")
-            searches.append(search)
-            shift = perspective_correction(cfg.camera.intrinsics, T_c_cf, mark.position_cf, mark.normal_cf,
-                                           mark.radius_mm)
-            shifts.append((float(shift[0]), float(shift[1])))
+        searches, shifts = plan_marks(cfg, pose)
         return _View(pose.points, tuple(holes), pose.marks, tuple(searches), tuple(shifts))
 
 

@@ -213,3 +213,16 @@ def test_a_calibrated_cell_whose_marks_were_never_surveyed_refuses_every_job(tmp
                             'marks = { done = "2026-11-30T09:30:00+00:00", marks = 12 }')
     path.write_text(surveyed)
     assert load_cell_config(path).cell_calibration_gap() is None
+
+
+def test_a_record_whose_mark_lies_outside_the_image_is_refused_naming_it(rig: _Rig) -> None:
+    rig.cell.new_part(np.random.default_rng(13))
+    record = rig.measure().record
+    bad = {**record, "mark_observations": [dict(o) for o in record["mark_observations"]]}
+    bad["mark_observations"][2]["pixel"] = [-40.0, 10.0]
+    result, _ = solve_record(bad, T_f_c=rig.config.camera.T_f_c)
+    assert result["status"] == "error" and result["error"]["code"] == "RECORD_INVALID"
+    assert "mark_observations[2].pixel" in result["error"]["message"]
+    unknown = {**record, "marks": [{**record["marks"][0], "where": 1}, *record["marks"][1:]]}
+    result, _ = solve_record(unknown, T_f_c=rig.config.camera.T_f_c)
+    assert result["error"]["code"] == "RECORD_UNKNOWN_KEY" and "where" in result["error"]["message"]
