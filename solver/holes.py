@@ -398,6 +398,17 @@ def _coarse_locate(
     return grey, plausible[0]
 
 
+def reach(shape: tuple[int, ...], roi: Sequence[int], r: float) -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1): the part of an image of ``shape`` that :func:`measure_hole` can look at for a hole of radius
+    ``r`` px sought in ``roi`` (x, y, w, h): the ROI grown by three times the blob search's own growth, clipped. A crop
+    of it, with the crop's origin taken off ``roi`` and the expected centre, finds the same hole at the same centre
+    (less that origin) without the frame-sized arrays."""
+    h, w = shape[:2]
+    grow = 3 * (math.ceil(1.6 * 1.6 * r) + 16)
+    x, y, rw, rh = (int(v) for v in roi)
+    return max(x - grow, 0), max(y - grow, 0), min(x + rw + grow, w), min(y + rh + grow, h)
+
+
 def _grey_window(image: np.ndarray, roi: Sequence[int], r: float, bit_depth: int | None) -> np.ndarray:
     """:func:`as_grey` of only the part of ``image`` that :func:`measure_hole` can look at for a hole of radius
     ``r`` centred in ``roi``: the ROI grown by three times the blob search's own growth (a hole found there is
@@ -406,9 +417,7 @@ def _grey_window(image: np.ndarray, roi: Sequence[int], r: float, bit_depth: int
     if not isinstance(image, np.ndarray) or image.ndim < 2 or len(roi) != 4:
         return as_grey(image, bit_depth)
     h, w = image.shape[:2]
-    grow = 3 * (math.ceil(1.6 * 1.6 * r) + 16)
-    x, y, rw, rh = (int(v) for v in roi)
-    x0, y0, x1, y1 = max(x - grow, 0), max(y - grow, 0), min(x + rw + grow, w), min(y + rh + grow, h)
+    x0, y0, x1, y1 = reach(image.shape, roi, r)
     if x1 - x0 < 8 or y1 - y0 < 8 or (x1 - x0) * (y1 - y0) > 0.8 * w * h:
         return as_grey(image, bit_depth)
     grey = np.zeros((h, w), dtype=np.float32)

@@ -52,6 +52,7 @@ __all__ = [
 # A direction of a block counts as measured when the data take more than this share of its prior variance away.
 MEASURED_SHARE = 0.05
 MAX_ITERATIONS = 30
+GAIN_LEFT = 1e-10  # converged when a step's predicted gain in the cost is below this share of it
 STEP_RAD, STEP_MM = 1e-9, 1e-6
 
 
@@ -131,6 +132,8 @@ def fit_marks(problem: MarksProblem, T_init: np.ndarray | None = None) -> MarksR
         iterations += 1
         H, g = J.T @ J, J.T @ z
         step = np.linalg.solve(H + lam * np.diag(np.diag(H)), -g)
+        if -float(g @ step) <= GAIN_LEFT * max(cost, 1.0):
+            break  # the step would gain nothing the cost can show (not ten rejections to find that out)
         trial = model.moved(state, step)
         try:
             z_new, J_new = model.linearise(trial)

@@ -13,7 +13,7 @@ from monoguide.daemon.config import CellConfig, MeasuringPose
 from monoguide.drivers.errors import ConfigError
 from monoguide.solver import frames
 from monoguide.solver.errors import MarkNotFound, MonoguideError
-from monoguide.solver.holes import measure_hole, perspective_correction
+from monoguide.solver.holes import measure_hole, perspective_correction, reach
 from monoguide.solver.planning.search import HoleSearch, hole_search
 
 # how far from where the calibration puts it a mark is sought (px, beyond its radius): 1.4 deg or 16 mm of the
@@ -49,13 +49,16 @@ def find_mark(image: np.ndarray, search: HoleSearch, shift: tuple[float, float],
     :class:`MarkNotFound` naming ``what`` (pose and mark). A mark's rim is long (twice a hole's, ~200 edge points):
     its ellipse fit alone is within 0.01 px of the rendered truth, the photometric refinement (7 ms a mark) adds
     nothing."""
-    ox, oy = offset
     (ex, ey), (rx, ry, rw, rh) = search.expected_px, search.roi
+    # only the part of the frame the finder can reach (the same centre, without frame-sized arrays: 4 ms a mark)
+    x0, y0, x1, y1 = reach(image.shape, (rx - offset[0], ry - offset[1], rw, rh), search.radius_px)
+    image, ox, oy = image[y0:y1, x0:x1], offset[0] + x0, offset[1] + y0
     try:
         mark = measure_hole(image, (ex - ox, ey - oy), search.radius_px, (rx - ox, ry - oy, rw, rh),
                             max_offset_px=search.max_offset_px, bit_depth=bits, photometric=False)
     except MonoguideError as exc:
         raise MarkNotFound(f"{what}: not found within {MARK_SEARCH_PX:g} px of where the calibration puts it "
-                           f"({ex:.0f}, {ey:.0f}) px: {exc.code}: {exc.message}; is something (a part out of place, a "
-                           "cable) hiding it, or has the camera moved? Nothing is written to the robot.") from exc
+                           f"({ex:.0f}, {ey:.0f}) px: {exc.code}: {exc.message} (the finder's px are of its window "
+                           f"at ({ox}, {oy})); is something (a part out of place, a cable) hiding it, or has the "
+                           "camera moved? Nothing is written to the robot.") from exc
     return float(mark.center[0]) + ox - shift[0], float(mark.center[1]) + oy - shift[1]

@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 import pytest
-
 from helpers.cell_configs import cell_config
+
 from monoguide.daemon.calibrate import SESSION_FILE, write_calibration
 from monoguide.daemon.config import load_cell_config
 from monoguide.drivers.errors import ConfigError

@@ -20,9 +20,12 @@ MONOGUIDE = [sys.executable, "-m", "monoguide.daemon.cli"]
 @pytest.mark.timeout(400)  # the simulate run (~45 s on 2 idle cores) has its own 900 s limit
 def test_a_bumped_camera_in_a_cell_with_marks_is_refused_every_cycle_and_health_sees_it(tmp_path: Path) -> None:
     work = tmp_path / "run"
-    done = subprocess.run([*MONOGUIDE, "simulate", "--json", "--jobs", "1", "--seed", "5", "-c",
-                           str(REPO / "config/sim-cell-marks.toml"), "--faults", "--fault", "camera bump 0.3 0 y",
-                           "--cycles", "5", "--host", "127.0.38.10", "--work-dir", str(work)],
+    config = tmp_path / "sim-cell-marks.toml"  # the robot's moves quick (0.05 s, not 0.5 s): the rest as shipped
+    text = (REPO / "config/sim-cell-marks.toml").read_text()
+    assert text.count("sim_move_time_s = 0.5\n") == 1
+    config.write_text(text.replace("sim_move_time_s = 0.5\n", "sim_move_time_s = 0.05\n"))
+    done = subprocess.run([*MONOGUIDE, "simulate", "--json", "--jobs", "1", "--seed", "5", "-c", str(config), "--faults",
+                           "--fault", "camera bump 0.3 0 y", "--cycles", "5", "--host", "127.0.38.10", "--work-dir", str(work)],
                           capture_output=True, text=True, cwd=REPO, timeout=900)
     assert done.returncode == 0, done.stderr[-2000:]
     lines = [json.loads(line) for line in done.stdout.splitlines() if line.strip()]
