@@ -24,9 +24,9 @@ def test_a_bumped_camera_in_a_cell_with_marks_is_refused_every_cycle_and_health_
     text = (REPO / "config/sim-cell-marks.toml").read_text()
     assert text.count("sim_move_time_s = 0.5\n") == 1
     config.write_text(text.replace("sim_move_time_s = 0.5\n", "sim_move_time_s = 0.05\n"))
-    done = subprocess.run([*MONOGUIDE, "simulate", "--json", "--jobs", "1", "--seed", "5", "-c", str(config), "--faults",
-                           "--fault", "camera bump 0.3 0 y", "--cycles", "5", "--host", "127.0.38.10", "--work-dir", str(work)],
-                          capture_output=True, text=True, cwd=REPO, timeout=900)
+    command = ["simulate", "--json", "--jobs", "1", "--seed", "5", "-c", str(config), "--faults", "--fault",
+               "camera bump 0.3 0 y", "--cycles", "5", "--host", "127.0.38.10", "--work-dir", str(work)]
+    done = subprocess.run([*MONOGUIDE, *command], capture_output=True, text=True, cwd=REPO, timeout=900)
     assert done.returncode == 0, done.stderr[-2000:]
     lines = [json.loads(line) for line in done.stdout.splitlines() if line.strip()]
     cycles, summary = [c for c in lines[:-1] if not c.get("summary")], lines[-1]
