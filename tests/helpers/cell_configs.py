@@ -15,11 +15,11 @@ from monoguide.solver.planning import look_at_poses
 
 def cell_config(tmp_path: Path, robot_host: str, plc_host: str | None = None, *, sharp: bool = False,
                 state_file: Path | None = None, more: Iterable[tuple[str, str]] = (), extra: str = "",
-                name: str = "cell.toml") -> Path:
-    """config/sim-cell.toml with the robot on ``robot_host`` and the PLC on ``plc_host`` (default: the next
-    address), quick robot moves; ``sharp``: no defocus blur (each rendering ~5 times faster, for tests whose
-    subject is not the hole finder's blur tolerance); ``state_file`` into ``[sim]``; ``more`` further exact
-    one-time replacements; ``extra`` appended (further sections)."""
+                name: str = "cell.toml", source: Path = SIM_CELL) -> Path:
+    """config/sim-cell.toml (or ``source``, another simulated cell) with the robot on ``robot_host`` and the PLC on
+    ``plc_host`` (default: the next address), quick robot moves; ``sharp``: no defocus blur (each rendering ~5 times
+    faster, for tests whose subject is not the hole finder's blur tolerance); ``state_file`` into ``[sim]``; ``more``
+    further exact one-time replacements; ``extra`` appended (further sections)."""
     if plc_host is None:
         prefix, last = robot_host.rsplit(".", 1)
         plc_host = f"{prefix}.{int(last) + 1}"
@@ -30,7 +30,7 @@ def cell_config(tmp_path: Path, robot_host: str, plc_host: str | None = None, *,
         replacements.append(("aperture_mm = 1.4867", "aperture_mm = 0.0"))
     if state_file is not None:
         replacements.append(("[sim]\n", f'[sim]\nstate_file = "{state_file}"\n'))
-    text = SIM_CELL.read_text()
+    text = source.read_text()
     for old, new in (*replacements, *more):
         assert text.count(old) == 1, old
         text = text.replace(old, new)

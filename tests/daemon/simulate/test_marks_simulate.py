@@ -11,6 +11,8 @@ import sys
 from pathlib import Path
 
 import pytest
+from helpers.cell_configs import cell_config
+from helpers.repository import MARKS_SIM_CELL
 
 REPO = Path(__file__).parents[3]
 MONOGUIDE = [sys.executable, "-m", "monoguide.daemon.cli"]
@@ -20,10 +22,8 @@ MONOGUIDE = [sys.executable, "-m", "monoguide.daemon.cli"]
 @pytest.mark.timeout(400)  # the simulate run (~45 s on 2 idle cores) has its own 900 s limit
 def test_a_bumped_camera_in_a_cell_with_marks_is_refused_every_cycle_and_health_sees_it(tmp_path: Path) -> None:
     work = tmp_path / "run"
-    config = tmp_path / "sim-cell-marks.toml"  # the robot's moves quick (0.05 s, not 0.5 s): the rest as shipped
-    text = (REPO / "config/sim-cell-marks.toml").read_text()
-    assert text.count("sim_move_time_s = 0.5\n") == 1
-    config.write_text(text.replace("sim_move_time_s = 0.5\n", "sim_move_time_s = 0.05\n"))
+    # as shipped, but for its addresses and the robot's quick moves (0.05 s, not 0.5 s)
+    config = cell_config(tmp_path, "127.0.38.10", source=MARKS_SIM_CELL, name="sim-cell-marks.toml")
     command = ["simulate", "--json", "--jobs", "1", "--seed", "5", "-c", str(config), "--faults", "--fault",
                "camera bump 0.3 0 y", "--cycles", "5", "--host", "127.0.38.10", "--work-dir", str(work)]
     done = subprocess.run([*MONOGUIDE, *command], capture_output=True, text=True, cwd=REPO, timeout=900)
