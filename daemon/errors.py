@@ -60,6 +60,15 @@ class CycleAborted(CycleError):
     plc_code = 602
 
 
+class CycleUnexpected(CycleError):
+    """An exception no stage should raise (a bug) ended the cycle: it is journaled with the stage, the exception's
+    type and message, the PLC sees DONE + ERROR with this code, nothing is written to the robot (an offset already
+    sent is settled as after any failed write), and the service log has the traceback."""
+
+    code = "CYCLE_UNEXPECTED"
+    plc_code = 605
+
+
 class PartNotCalibrated(CycleError):
     """The job's part type has not been calibrated by the wizard (``monoguide calibrate --job N``) in a cell whose
     other parts have: its jobs are refused, the message names the job, the part and the missing steps."""
@@ -333,3 +342,19 @@ class PlantListenFailed(MonoguideError):
 
     code = "PLANT_LISTEN_FAILED"
     plc_code = 681
+
+
+def drop_tracebacks(error: BaseException | None) -> None:
+    """Let go of what ``error`` holds through its traceback, and through those of its cause and context: the frames
+    of every stage it passed, with their images and arrays (tens of MB for a hole not found). A finished cycle's
+    error is kept (the state machine's history, a device's last error) as its code and message, never with the
+    frames."""
+    seen: set[int] = set()
+    chain = [error]
+    while chain:
+        link = chain.pop()
+        if link is None or id(link) in seen:
+            continue
+        seen.add(id(link))
+        link.__traceback__ = None
+        chain += [link.__cause__, link.__context__]

@@ -9,11 +9,13 @@ from __future__ import annotations
 from typing import Any
 
 from monoguide.daemon.cycle._residual import Residual
+from monoguide.daemon.cycle._seen import FailedAt, Sought, ViewsSeen, wait_images
 from monoguide.daemon.cycle._states import CYCLE_STATES, ERROR_CAUSES, TRANSITIONS, Cause, CycleStateMachine, State
 
-__all__ = ["CYCLE_STATES", "ERROR_CAUSES", "TRANSITIONS", "Cause", "CycleRunner", "CycleStateMachine", "Residual",
-           "State", "tune_malloc"]
-_RUNNER = ("CycleRunner", "tune_malloc")
+__all__ = ["CYCLE_STATES", "ERROR_CAUSES", "TRANSITIONS", "Cause", "CycleRunner", "CycleStateMachine", "FailedAt",
+           "Residual", "Sought", "State", "ViewsSeen", "trim_malloc", "tune_malloc",
+           "wait_images"]
+_RUNNER = ("CycleRunner", "trim_malloc", "tune_malloc")
 
 
 def __getattr__(name: str) -> Any:

@@ -1,14 +1,14 @@
 """The cycle's images written as PNGs off the cycle's path, by a worker thread of their own.
 
 The last view's image would otherwise sit between the last frame and the offset write: the cycle hands each
-frame over and waits for the files only after the robot acknowledged the offset (at most ``WAIT_S``).
+frame over and waits for the files only after the robot acknowledged the offset (at most
+:data:`~monoguide.daemon.cycle._seen.IMAGES_WAIT_S`, :func:`~monoguide.daemon.cycle._seen.wait_images`).
 """
 
 from __future__ import annotations
 
 import logging
 import re
-import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
@@ -18,7 +18,6 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 PNG_COMPRESSION = 1  # fast: a 5 MP frame in ~0.1 s
-WAIT_S = 10.0
 
 
 def image_path(images_dir: Path | str | None, pose_name: str) -> Path | None:
@@ -39,19 +38,6 @@ class ImageWriter:
 
     def close(self) -> None:
         self._pool.shutdown(wait=True)
-
-
-def wait_images(images: list[Future[bool]], timeout_s: float = WAIT_S) -> bool:
-    """Wait (at most ``timeout_s`` in all) until the cycle's PNGs are written; True when all were."""
-    deadline = time.monotonic() + timeout_s
-    ok = True
-    for future in images:
-        try:
-            ok &= bool(future.result(timeout=max(deadline - time.monotonic(), 0.0)))
-        except TimeoutError:
-            log.warning("images: still writing after %.0f s", timeout_s)
-            return False
-    return ok
 
 
 def _save_png(path: Path, image: np.ndarray, name: str) -> bool:

@@ -38,10 +38,11 @@ from pathlib import Path
 import numpy as np
 
 from monoguide.daemon.config import CellConfig, ChecksConfig
-from monoguide.daemon.cycle._images import ImageWriter, image_path, wait_images
+from monoguide.daemon.cycle._images import ImageWriter, image_path
 from monoguide.daemon.cycle._marks import MARK_FINDERS, find_mark, plan_marks
 from monoguide.daemon.cycle._record import Capture, Measurement, RecordBuilder, Solution
 from monoguide.daemon.cycle._residual import Residual
+from monoguide.daemon.cycle._seen import Sought, ViewsSeen, wait_images
 from monoguide.drivers.camera import Camera, CameraSettings, Frame
 from monoguide.drivers.errors import ConfigError, DeviceError
 from monoguide.drivers.robot import Robot
@@ -88,6 +89,18 @@ def tune_malloc() -> bool:
     except (OSError, AttributeError):
         return False
     return bool(mallopt(_M_ARENA_MAX, MALLOC_ARENAS)) & bool(mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES))
+
+
+def trim_malloc() -> bool:
+    """Give the memory freed by a cycle back to the system now (glibc's ``malloc_trim(0)``, every arena): a cycle
+    that failed in a bright or cluttered frame leaves its finder's many small blocks freed but scattered, and the
+    arenas would keep them resident. A few milliseconds, after the PLC was told; False when not glibc."""
+    try:
+        import ctypes
+
+        return bool(ctypes.CDLL(None).malloc_trim(0))
+    except (OSError, AttributeError):
+        return False
 
 
 @dataclass(frozen=True)
@@ -140,11 +153,13 @@ class CycleRunner:
     # --- the four steps ---------------------------------------------------------------------------
 
     def measure(self, job: int, abort: threading.Event, abort_error: Callable[[], MonoguideError],
-                holes: bool = True) -> Measurement:
+                holes: bool = True, seen: ViewsSeen | None = None) -> Measurement:
         """Visit every measuring pose; raise ``abort_error()`` when ``abort`` is set (checked before each
         request and after each wait). ``job`` has been checked by the caller (the service's job rule).
         ``holes`` False: the marks alone (the check job of a cell with marks; no part needed), its record has no
-        hole observations and is not parsed (``Measurement.parsed`` None)."""
+        hole observations and is not parsed (``Measurement.parsed`` None). ``seen`` is told each view as it is
+        visited and what its finder found or where it failed (what a failed cycle is journaled with)."""
+        seen = seen if seen is not None else ViewsSeen()
         timings = {"robot_motion": 0.0, "exposure": 0.0, "hole_finding": 0.0}
         with device_errors("camera"):
             self._configure_camera()
@@ -152,6 +167,7 @@ class CycleRunner:
         futures: list[Future[tuple[Capture, float]]] = []
         last_frame_at = 0.0
         images: list[Future[bool]] = []
+        i = 0
         try:
             for i in range(len(poses)):
                 _check_abort(abort, abort_error)
@@ -168,12 +184,15 @@ class CycleRunner:
                 timings["robot_motion"] += t1 - t0
                 timings["exposure"] += last_frame_at - t1
                 path = image_path(self.images_dir, poses[i].name)
-                if path is not None:
-                    images.append(self._images.submit(path, frame.image, poses[i].name))
-                futures.append(self._finder.submit(self._find, i, frame, np.array(status.T_b_f, dtype=float), path,
-                                                   holes))
+                writing = None if path is None else self._images.submit(path, frame.image, poses[i].name)
+                if writing is not None:
+                    images.append(writing)
+                T_b_f = np.array(status.T_b_f, dtype=float)
+                seen.visited(i, poses[i].name, None if path is None else str(path), T_b_f,
+                             self._sought(i) if holes else (), writing)
+                futures.append(self._finder.submit(self._find, i, frame, T_b_f, path, holes, seen))
             captures = []
-            for future in futures:
+            for i, future in enumerate(futures):  # noqa: B007 (i: the view waited for, if this wait fails)
                 while True:  # every wait has a way out: the abort
                     _check_abort(abort, abort_error)
                     try:
@@ -183,6 +202,9 @@ class CycleRunner:
                         continue
                 captures.append(capture)
                 timings["hole_finding"] += seconds
+        except BaseException:
+            seen.failed(poses[i].name)  # where the robot, the camera or an abort stopped it (a finder's came first)
+            raise
         finally:
             for future in futures:
                 future.cancel()  # those not started; a running one ends on its own (it only reads its frame)
@@ -291,11 +313,13 @@ class CycleRunner:
             raise
 
     def _find(self, i: int, frame: Frame, T_b_f: np.ndarray, path: Path | None = None,
-              holes: bool = True) -> tuple[Capture, float]:
+              holes: bool = True, seen: ViewsSeen | None = None) -> tuple[Capture, float]:
         """The worker: the expected holes (``holes``) and marks of view ``i`` in ``frame``; (capture, seconds spent
-        finding)."""
+        finding). ``seen`` is told what was found, or which hole or mark was not."""
         start = time.monotonic()
+        seen = seen if seen is not None else ViewsSeen()
         pose, view = self.config.measuring_poses[i], self._views[i]
+        names, mark_names = self.config.part.point_names, [mark.name for mark in self.config.reference_marks]
         ox, oy = (self.settings.region or (0, 0, 0, 0))[:2]
         bits = bit_depth_of(frame.pixel_format)
         marks = [self._mark_finder.submit(find_mark, frame.image, search, shift, (ox, oy), bits,
@@ -309,16 +333,34 @@ class CycleRunner:
                     hole = measure_hole(frame.image, (ex - ox, ey - oy), search.radius_px,
                                         (rx - ox, ry - oy, rw, rh), max_offset_px=search.max_offset_px, bit_depth=bits)
                 except MonoguideError as exc:
-                    raise type(exc)(f"{pose.name}, {self.config.part.point_names[j]}: {exc.message}") from exc
+                    seen.failed(pose.name, names[j], search.expected_px)
+                    raise type(exc)(f"{pose.name}, {names[j]}: {exc.message}") from exc
                 found.append((float(hole.center[0]) + ox, float(hole.center[1]) + oy))
-            seen = tuple((m, future.result()) for m, future in zip(view.marks, marks, strict=True))
+            marks_found = []
+            for m, search, future in zip(view.marks, view.mark_searches, marks, strict=True):
+                try:
+                    marks_found.append((m, future.result()))
+                except MonoguideError:
+                    seen.failed(pose.name, mark_names[m], search.expected_px)
+                    raise
+        except Exception:
+            seen.failed(pose.name)  # not the finder's own refusal (that named its hole or mark above): say where
+            raise
         finally:
             for future in marks:
                 future.cancel()
+        seen.found(i, [(j, names[j], px) for j, px in zip(view.points, found, strict=False)],
+                   [(m, mark_names[m], px) for m, px in marks_found])
         seconds = time.monotonic() - start
         first = found[0] if found else (math.nan, math.nan)
         return Capture(i, T_b_f, None if path is None else str(path), first, tuple(found), tuple(found),
-                       seen), seconds
+                       tuple(marks_found)), seconds
+
+    def _sought(self, i: int) -> tuple[Sought, ...]:
+        """Where view ``i``'s holes are sought (the image of each centre over the reference part)."""
+        view, names = self._views[i], self.config.part.point_names
+        return tuple(Sought(j, names[j], (float(s.expected_px[0]), float(s.expected_px[1])), float(s.radius_px))
+                     for j, s in zip(view.points, view.holes, strict=True))
 
     def _plan_view(self, i: int) -> _View:
         """Where pose ``i``'s holes are sought, over the whole deviation envelope (``ConfigError`` naming the

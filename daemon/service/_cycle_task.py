@@ -23,8 +23,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from monoguide.daemon.config import CellConfig
-from monoguide.daemon.cycle import Cause, CycleStateMachine, Residual, State
-from monoguide.daemon.errors import CycleAborted, CycleError, PartNotCalibrated
+from monoguide.daemon.cycle import Cause, CycleStateMachine, Residual, State, ViewsSeen
+from monoguide.daemon.errors import CycleAborted, CycleError, CycleUnexpected, PartNotCalibrated, drop_tracebacks
 from monoguide.daemon.service._devices import CellDevices
 from monoguide.daemon.service._journal import Journal
 from monoguide.daemon.service._offsets import OffsetLedger
@@ -44,9 +44,14 @@ RunnerFactory = Callable[[CellConfig, Any, Any, "Path | None"], Any]
 @dataclass
 class Outcome:
     """What one cycle produced: its measurement and solution as far as it got, or its error; ``number`` and
-    ``sequence`` once the offset's intent was committed (the cycle's number is then fixed)."""
+    ``sequence`` once the offset's intent was committed (the cycle's number is then fixed).
+
+    ``started_at`` is the trigger's Unix time (the journal's), ``started_monotonic`` the same moment on the monotonic
+    clock (the cycle's duration); ``seen`` what each view visited showed (kept for a failed cycle's journal row);
+    ``stage`` the state the cycle failed in and ``exception`` the type of what was raised there."""
 
     started_at: float
+    started_monotonic: float = field(default_factory=time.monotonic)
     measurement: Any = None
     solution: Any = None
     written: bool = False
@@ -54,6 +59,22 @@ class Outcome:
     timings_s: dict[str, float] = field(default_factory=dict)
     number: int | None = None
     sequence: int | None = None
+    seen: ViewsSeen = field(default_factory=ViewsSeen)
+    stage: State | None = None
+    exception: str | None = None
+    committed: int | None = None  # the journal row's number, once committed
+
+    def fail(self, error: MonoguideError, stage: State, raised: BaseException | None = None) -> None:
+        """The cycle ended by ``error`` in ``stage``; ``raised`` what the stage raised when that was not ``error``
+        itself (an unexpected exception wrapped in :class:`CycleUnexpected`; the first one named stays named)."""
+        self.error, self.stage = error, stage
+        self.exception = self.exception or type(raised if raised is not None else error).__name__
+
+    def release(self) -> None:
+        """After the cycle was reported: let go of the measurement, the solution and the error's tracebacks (the
+        frames of the stages, with their images), so that a failed cycle keeps no more memory than a good one."""
+        drop_tracebacks(self.error)
+        self.measurement = self.solution = None
 
 
 class Abort:
@@ -138,50 +159,62 @@ class CycleTask:
         self.health, self.shown = health, shown
 
     async def run(self, inputs: PlcInputs) -> Outcome:
-        """Any failure ends in ``outcome.error``; success leaves the machine in REPORTING."""
+        """Never raises (but for cancellation): any failure ends in ``outcome.error`` with the stage it struck in —
+        an exception no stage should raise (a bug) as :class:`CycleUnexpected` naming it, its traceback in the log;
+        success leaves the machine in REPORTING."""
         outcome = Outcome(time.time())
-        machine = self.machine
         try:
-            self.journal.check_identity()  # a journal deleted or replaced: refuse before the robot moves
-            job = check_job(inputs, self.runners.jobs)
-            checking = job == CHECK_JOB  # the calibration check: the first part type's reference part, as taught
-            part_job = self.runners.jobs[0] if checking else job
-            self.runners.check_calibrated(part_job)
-            if self.health is not None and not checking:  # a check runs while latched: it may clear the latch
-                self.health.check_latch()
-            images_dir = self.journal.images_dir / f"cycle-{self.journal.next_number()}" if self.keep_images else None
-            runner = self.runners.for_devices(part_job, self.devices.handle("camera"), self.devices.handle("robot"),
-                                              images_dir)
-            marks_only = checking and getattr(runner, "has_marks", False)  # a check of the marks needs no part
-            outcome.measurement = await self._stage(runner.measure, part_job, self.abort.event,
-                                                    lambda: self.abort.error, *((False,) if marks_only else ()))
-            machine.fire(Cause.VIEWS_MEASURED, f"{len(outcome.measurement.captures)} views")
-            if checking:
-                await self._check(runner, outcome)
-                return outcome
-            try:
-                outcome.solution = await self._stage(runner.solve, outcome.measurement)
-            except (InconsistentMeasurement, CalibrationSuspect) as exc:  # evidence for the trend monitor too
-                await self._observe(job, getattr(exc, "residual", None), exc)
-                raise
-            await self._observe(job, getattr(outcome.solution, "residual", None))  # a stand-in runner's has none
-            machine.fire(Cause.POSE_SOLVED)
-            await self._stage(runner.check, outcome.measurement, outcome.solution)
-            machine.fire(Cause.CHECKS_PASSED)
-            self.abort.check()  # the last look: after an abort nothing is written to the robot
-            sequence = await self._write(runner, outcome)
-            outcome.written = True
-            machine.fire(Cause.OFFSET_ACKNOWLEDGED, f"sequence {sequence}")
-            if isinstance(self.abort.error, PlcTriggerDropped | CycleAborted):
-                # too late to abort: the robot has the offset, and the PLC is told so (RESULT_OK)
-                log.warning("%s came while the offset was being written: the robot acknowledged it (sequence %s); "
-                            "reported as RESULT_OK", self.abort.error.code, sequence)
-                self.abort.clear()
+            await self._stages(inputs, outcome)
         except MonoguideError as exc:
-            outcome.error = exc
-        if outcome.error is None and machine.state is not State.REPORTING:
-            outcome.error = CycleError(f"cycle ended in state {machine.state.value}, not reporting")
+            outcome.fail(exc, self.machine.state)
+        except Exception as exc:  # a bug: the cycle is journaled and reported all the same
+            stage = self.machine.state
+            log.exception("cycle: unexpected %s in state %s", type(exc).__name__, stage.value)
+            outcome.fail(unexpected(exc, stage), stage, exc)
+            drop_tracebacks(exc)
+        if outcome.error is None and self.machine.state is not State.REPORTING:
+            outcome.fail(CycleError(f"cycle ended in state {self.machine.state.value}, not reporting"),
+                         self.machine.state)
         return outcome
+
+    async def _stages(self, inputs: PlcInputs, outcome: Outcome) -> None:
+        machine = self.machine
+        self.journal.check_identity()  # a journal deleted or replaced: refuse before the robot moves
+        self.devices.require()  # a device lost between the trigger and now
+        job = check_job(inputs, self.runners.jobs)
+        checking = job == CHECK_JOB  # the calibration check: the first part type's reference part, as taught
+        part_job = self.runners.jobs[0] if checking else job
+        self.runners.check_calibrated(part_job)
+        if self.health is not None and not checking:  # a check runs while latched: it may clear the latch
+            self.health.check_latch()
+        images_dir = self.journal.images_dir / f"cycle-{self.journal.next_number()}" if self.keep_images else None
+        runner = self.runners.for_devices(part_job, self.devices.handle("camera"), self.devices.handle("robot"),
+                                          images_dir)
+        marks_only = checking and getattr(runner, "has_marks", False)  # a check of the marks needs no part
+        outcome.measurement = await self._stage(runner.measure, part_job, self.abort.event, lambda: self.abort.error,
+                                                not marks_only, outcome.seen)
+        machine.fire(Cause.VIEWS_MEASURED, f"{len(outcome.measurement.captures)} views")
+        if checking:
+            await self._check(runner, outcome)
+            return
+        try:
+            outcome.solution = await self._stage(runner.solve, outcome.measurement)
+        except (InconsistentMeasurement, CalibrationSuspect) as exc:  # evidence for the trend monitor too
+            await self._observe(job, getattr(exc, "residual", None), exc)
+            raise
+        await self._observe(job, getattr(outcome.solution, "residual", None))  # a stand-in runner's has none
+        machine.fire(Cause.POSE_SOLVED)
+        await self._stage(runner.check, outcome.measurement, outcome.solution)
+        machine.fire(Cause.CHECKS_PASSED)
+        self.abort.check()  # the last look: after an abort nothing is written to the robot
+        sequence = await self._write(runner, outcome, inputs)
+        outcome.written = True
+        machine.fire(Cause.OFFSET_ACKNOWLEDGED, f"sequence {sequence}")
+        if isinstance(self.abort.error, PlcTriggerDropped | CycleAborted):
+            # too late to abort: the robot has the offset, and the PLC is told so (RESULT_OK)
+            log.warning("%s came while the offset was being written: the robot acknowledged it (sequence %s); "
+                        "reported as RESULT_OK", self.abort.error.code, sequence)
+            self.abort.clear()
 
     async def _check(self, runner: Any, outcome: Outcome) -> None:
         """The check job's solve and comparison with the reference (``daemon.cycle._check``): a pass clears the
@@ -193,7 +226,7 @@ class CycleTask:
         if outcome.measurement.parsed is not None:  # the reference part: the poses visited again, averaged together
             for _ in range(max(getattr(getattr(runner, "checks", None), "check_visits", 1), 1) - 1):
                 more.append(await self._stage(runner.measure, outcome.measurement.job, self.abort.event,
-                                              lambda: self.abort.error))
+                                              lambda: self.abort.error, True, outcome.seen))
         try:
             outcome.solution, found = await self._stage(solve_and_check, runner, outcome.measurement, *more)
             self.machine.fire(Cause.POSE_SOLVED)
@@ -233,9 +266,9 @@ class CycleTask:
         self.abort.check()
         return value
 
-    async def _write(self, runner: Any, outcome: Outcome) -> int:
-        """The offset to the robot, its intent committed first; a failure after the send is settled at once
-        (:meth:`OffsetLedger.after_failed_write`) or ends in ``ROBOT_OFFSET_UNCONFIRMED``."""
+    async def _write(self, runner: Any, outcome: Outcome, inputs: PlcInputs) -> int:
+        """The offset to the robot, its intent committed first; a failure after the send — an unexpected exception
+        too — is settled at once (:meth:`OffsetLedger.after_failed_write`) or ends in ``ROBOT_OFFSET_UNCONFIRMED``."""
         solution, ledger = outcome.solution, self.ledger
         number = self.journal.next_number()
 
@@ -245,8 +278,20 @@ class CycleTask:
 
         try:
             return await asyncio.to_thread(runner.write, solution, before_send)
-        except MonoguideError as exc:
+        except Exception as exc:
             if outcome.sequence is None:
                 raise  # nothing went to the robot (the journal refused the intent, or the robot was not ready)
+            failed = exc if isinstance(exc, MonoguideError) else unexpected(exc, State.WRITING)
+            if failed is not exc:
+                log.exception("cycle: unexpected %s while writing the offset (sequence %d sent)", type(exc).__name__,
+                              outcome.sequence)
+                outcome.exception = type(exc).__name__
             robot = self.devices.handle("robot")
-            raise await asyncio.to_thread(ledger.after_failed_write, robot, number, outcome.sequence, exc) from exc
+            raise await asyncio.to_thread(ledger.after_failed_write, robot, number, outcome.sequence, failed) from exc
+
+
+def unexpected(exc: BaseException, stage: State) -> CycleUnexpected:
+    """What the PLC and the journal are told of an exception no stage should raise."""
+    text = str(exc) or "(no message)"
+    return CycleUnexpected(f"unexpected {type(exc).__name__} in state {stage.value}: {text} (a bug: the service log "
+                           "has its traceback; nothing was written to the robot unless the journal says so)")

@@ -5,7 +5,9 @@ event loop keeps polling the PLC meanwhile. A device that cannot be opened is re
 delay (:data:`BACKOFF_S`), and each attempt says so in the log (``camera: cannot connect (...);
 reconnecting in 2 s``). A cycle that fails with a lost connection hands its error to :meth:`lost`: the
 device it came from is closed and reopened in the background (the others stay open), and the cell is not
-READY until it is back.
+READY until it is back. Between cycles the robot is asked at every poll whether it still answers
+(:meth:`CellDevices.watch`): a controller lost while the cell waits for a trigger takes READY away at once, not at
+the next trigger.
 """
 
 from __future__ import annotations
@@ -30,7 +32,8 @@ CONNECTION_LOST = (DeviceDisconnected, DeviceNotFound, RobotWorkerCrashed)
 
 @dataclass
 class DeviceSlot:
-    """One device: how to open it (blocking; returns the opened device) and how to close it."""
+    """One device: how to open it (blocking; returns the opened device), how to close it, and how to ask it between
+    cycles whether it still answers (blocking and quick; a :class:`MonoguideError` when not; None: not asked)."""
 
     name: str
     open: Callable[[], Any]
@@ -38,6 +41,7 @@ class DeviceSlot:
     handle: Any = None
     last_error: MonoguideError | None = None
     attempts: int = 0
+    watch: Callable[[Any], None] | None = None
 
     @property
     def connected(self) -> bool:
@@ -55,6 +59,16 @@ class CellDevices:
     @property
     def connected(self) -> bool:
         return all(slot.connected for slot in self.slots.values())
+
+    def require(self) -> None:
+        """Before a cycle uses the devices: :class:`DeviceDisconnected` naming a device that is not connected (lost
+        between the trigger and the cycle's start), with why it was lost."""
+        for slot in self.slots.values():
+            if slot.handle is None:
+                why = "" if slot.last_error is None else f": {slot.last_error.code} {slot.last_error.message}"
+                error = DeviceDisconnected(f"{slot.name}: not connected{why}; nothing moved")
+                error.device = slot.name  # type: ignore[attr-defined]  # as the cycle's own (device_errors)
+                raise error
 
     def handle(self, name: str) -> Any:
         slot = self.slots.get(name)
@@ -75,15 +89,21 @@ class CellDevices:
         if not slots:
             return False  # another device's (the PLC's: the service reconnects it itself)
         for slot in slots:
-            slot.last_error = error
-            if slot.handle is not None:
-                handle, slot.handle = slot.handle, None
-                log.warning("%s lost (%s %s); reconnecting in %g s", slot.name, error.code, error.message,
-                            BACKOFF_S[0])
-                with contextlib.suppress(Exception):
-                    slot.close(handle)  # the driver's close is quick; it must not block the loop for long
-        self._wake.set()
+            self._reopen(slot, error)
         return True
+
+    async def watch(self) -> None:
+        """Between cycles: ask each connected device that can be asked whether it still answers; one that does not
+        is closed and reopened in the background (the cell is not READY until it is back)."""
+        for slot in list(self.slots.values()):
+            if slot.watch is None or slot.handle is None:
+                continue
+            handle = slot.handle
+            try:
+                await asyncio.to_thread(slot.watch, handle)
+            except MonoguideError as exc:
+                if slot.handle is handle:
+                    self._reopen(slot, exc)
 
     async def keep_connected(self) -> None:
         """Open every closed device, retrying with backoff; runs until cancelled."""
@@ -109,6 +129,15 @@ class CellDevices:
                     await asyncio.to_thread(slot.close, handle)
                 except Exception as exc:  # closing at exit: say so, carry on with the others
                     log.warning("%s: close failed: %r", slot.name, exc)
+
+    def _reopen(self, slot: DeviceSlot, error: MonoguideError) -> None:
+        slot.last_error = error
+        if slot.handle is not None:
+            handle, slot.handle = slot.handle, None
+            log.warning("%s lost (%s %s); reconnecting in %g s", slot.name, error.code, error.message, BACKOFF_S[0])
+            with contextlib.suppress(Exception):
+                slot.close(handle)  # the driver's close is quick; it must not block the loop for long
+        self._wake.set()
 
     async def _try_open(self, slot: DeviceSlot) -> None:
         try:
@@ -146,4 +175,5 @@ def cell_devices(config: Any) -> CellDevices:
         return robot
 
     return CellDevices([DeviceSlot("camera", open_camera, lambda camera: camera.close()),
-                        DeviceSlot("robot", open_robot, lambda robot: robot.close())])
+                        DeviceSlot("robot", open_robot, lambda robot: robot.close(),
+                                   watch=lambda robot: robot.watch())])

@@ -25,8 +25,8 @@ from pathlib import Path
 from typing import Any
 
 from monoguide.daemon.config import CellConfig, ServiceConfig, require_sections
-from monoguide.daemon.cycle import CYCLE_STATES, Cause, CycleStateMachine, State
-from monoguide.daemon.errors import CycleAborted, CycleError
+from monoguide.daemon.cycle import CYCLE_STATES, Cause, CycleStateMachine, State, trim_malloc
+from monoguide.daemon.errors import CycleAborted, CycleError, drop_tracebacks
 from monoguide.daemon.service._cycle_task import Abort, CycleTask, RunnerFactory, Runners
 from monoguide.daemon.service._devices import CellDevices, cell_devices
 from monoguide.daemon.service._health import CalibrationHealth
@@ -105,6 +105,7 @@ class Service:
         self.report = CycleReport(self.machine, self.journal, self.ledger, devices, self.link, self.shown, settings)
         self.cycle_task: asyncio.Task[None] | None = None
         self.settle_task: asyncio.Task[None] | None = None
+        self.watch_task: asyncio.Task[None] | None = None  # the devices asked between cycles
         self.settle_next_try = 0.0
         self.stop_deadline: float | None = None
         self.last_poll = time.monotonic()
@@ -139,10 +140,11 @@ class Service:
         if (self.stop.is_set() or self._enough_cycles()) and await self._stopping(now):
             return True
         if not self.link.connected:
-            await self.link.connect(now, self.shown, self._shown_result())
+            await self.link.connect(now, self.shown, self._shown_result)
         else:
             await self._poll(now)
         self._settle_offsets(now)
+        self._watch_devices()
         await self._follow()
         return False
 
@@ -184,6 +186,8 @@ class Service:
         except PlcHeartbeatLost as exc:
             self._fail_hard(exc)
             return
+        if state is State.IDLE and not self._follow_devices():  # a device lost since the last poll: not READY
+            state = self.machine.state
         if state in CYCLE_STATES and self.cycle_task is not None and Control.TRIGGER not in control:
             self.abort.request(PlcTriggerDropped(f"register 0 (control word): TRIGGER dropped while BUSY (in state "
                                                  f"{state.value})"))
@@ -251,7 +255,8 @@ class Service:
     def _settle_offsets(self, now: float) -> None:
         """An offset the robot may hold (429): ask the robot, once it is connected, no cycle runs, and not more
         often than every SETTLE_RETRY_S."""
-        if not self.ledger.unsettled or self.settle_task is not None or self.cycle_task is not None:
+        if (not self.ledger.unsettled or self.settle_task is not None or self.cycle_task is not None
+                or (self.watch_task is not None and not self.watch_task.done())):
             return
         robot = self.devices.handle("robot")
         if robot is None or now < self.settle_next_try:
@@ -281,8 +286,9 @@ class Service:
         elif self.machine.state in (State.IDLE, State.AWAITING_ACK):
             self.machine.fire(Cause.DEVICE_LOST, f"PLC {self.link.address}")
 
-    async def _follow(self) -> None:
-        """Follow the devices (STARTING <-> IDLE), then show the state: status word, status file, STATUS=."""
+    def _follow_devices(self) -> bool:
+        """STARTING -> IDLE once every device and the PLC are connected, IDLE -> STARTING as soon as one is not;
+        True when the cell is ready."""
         state, ready = self.machine.state, self.devices.connected and self.link.connected
         if state is State.STARTING and ready and self.cycle_task is None and self.stop_deadline is None:
             self.machine.fire(Cause.DEVICES_CONNECTED, ", ".join(["plc", *self.devices.slots]))
@@ -291,6 +297,18 @@ class Service:
         elif state is State.IDLE and not ready:
             self.machine.fire(Cause.DEVICE_LOST, ", ".join(n for n, s in self.devices.slots.items() if not s.connected)
                               or "plc")
+        return ready
+
+    def _watch_devices(self) -> None:
+        """Between cycles, at every poll: ask the devices whether they still answer (one question at a time, never
+        beside a cycle or a settling, which use the robot themselves)."""
+        if (self.machine.state is State.IDLE and self.cycle_task is None and self.settle_task is None
+                and self.stop_deadline is None and (self.watch_task is None or self.watch_task.done())):
+            self.watch_task = asyncio.create_task(self.devices.watch())
+
+    async def _follow(self) -> None:
+        """Follow the devices (STARTING <-> IDLE), then show the state: status word, status file, STATUS=."""
+        self._follow_devices()
         if self.machine.state is not self.reported_state:
             self.reported_state, self.since = self.machine.state, time.time()
             self._write_status_file()
@@ -301,7 +319,7 @@ class Service:
                 self.health.take_clear_request()  # `monoguide health --clear`: between cycles
             self.shown.calibration_warning = self.health.warning  # also once the monitors are restored at start
             word = status_word(self.machine.state, self.shown.outcome_ok, self.shown.acknowledged,
-                               self.shown.calibration_warning)
+                               self.shown.calibration_warning, stopping=self.stop_deadline is not None)
             try:
                 await self.link.show(word, self._shown_result(), fault)
             except DeviceError as exc:
@@ -322,18 +340,26 @@ class Service:
         self.cycle_task = asyncio.create_task(self._cycle(inputs, now))
 
     async def _cycle(self, inputs: PlcInputs, triggered_at: float) -> None:
+        """The one way a cycle ends, whatever ended it: journaled with what it captured, the PLC told, its memory
+        released (:meth:`Outcome.release`). The task never raises; a bug in the report latches FAULT."""
+        outcome = None
         try:
+            if self.watch_task is not None:  # a question to the devices still under way: they answer one at a time
+                await self.watch_task
             await self.report.finish_housekeeping()  # the last cycle's journal work first: one user at a time
             outcome = await self.task.run(inputs)
             await self.report.report(inputs, triggered_at, outcome, self.abort)
-        except Exception:  # a bug: say so loudly, and latch FAULT rather than hang BUSY
-            log.exception("cycle: unexpected failure")
-            error = CycleError("the cycle failed unexpectedly (see the service log)")
-            if self.machine.can(Cause.FAILED):
-                self.machine.fire(Cause.FAILED, error=error)
-            if self.machine.can(Cause.REPORT_FAILED):
-                self.machine.fire(Cause.REPORT_FAILED, error=error)
+        except Exception as exc:  # a bug of the report: say so loudly, journal the cycle, latch FAULT
+            log.exception("cycle: unexpected failure while reporting")
+            try:
+                await self.report.failed_unexpectedly(inputs, outcome, exc)
+            except Exception:
+                log.exception("cycle: the unexpected failure could not be journaled")
+            drop_tracebacks(exc)
         finally:
+            if outcome is not None:
+                outcome.release()
+            await asyncio.to_thread(trim_malloc)  # what the cycle freed, back to the system (after DONE)
             self.cycle_task = None
 
     # --- status file, sd_notify, exit ---------------------------------------------------------------
@@ -375,6 +401,9 @@ class Service:
             with contextlib.suppress(Exception):
                 await self.cycle_task
         await self.report.finish_housekeeping()
+        if self.watch_task is not None:
+            with contextlib.suppress(Exception):
+                await self.watch_task
         if self.settle_task is not None:
             with contextlib.suppress(Exception):
                 await self.settle_task

@@ -16,6 +16,7 @@ import contextlib
 import dataclasses
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -36,15 +37,17 @@ ZERO_QUALITY = (0.0,) * 3
 
 
 def status_word(state: State, outcome_ok: bool | None, acknowledged: bool,
-                calibration_warning: bool = False) -> Status:
+                calibration_warning: bool = False, stopping: bool = False) -> Status:
     """The status word (register 10) shown in ``state``, with CALIBRATION_WARNING while ``calibration_warning``
     (in every state but STARTING and STOPPED).
 
     ``outcome_ok``: in AWAITING_ACK, whether the cycle's offset was written (RESULT_OK) or not (ERROR);
     ``acknowledged``: RESULT_ACK was seen, DONE/RESULT_OK/ERROR are cleared while TRIGGER and RESULT_ACK
-    fall (READY follows once both are low).
+    fall (READY follows once both are low). ``stopping``: the service is stopping (SIGTERM): never READY.
     """
     word = _state_word(state, outcome_ok, acknowledged)
+    if stopping:
+        word &= ~Status.READY
     if calibration_warning and state not in (State.STARTING, State.STOPPED):
         word |= Status.CALIBRATION_WARNING
     return word
@@ -171,15 +174,16 @@ class PlcLink:
     def address(self) -> str:
         return self.plc.address
 
-    async def connect(self, now: float, shown: Shown, result: CycleResult) -> bool:
-        """One attempt when its time has come: status word 0, the result registers, the control word."""
+    async def connect(self, now: float, shown: Shown, result: Callable[[], CycleResult]) -> bool:
+        """One attempt when its time has come: status word 0, the result registers (``result()``: as they must
+        show now, the journal's numbering continued first), the control word."""
         if now < self.next_try:
             return False
         try:
             await self.plc.connect()  # writes status word 0 before anything else
             if not self.numbering_checked:
                 await self._continue_numbering(shown)
-            await self.plc.write_result(result)
+            await self.plc.write_result(result())
             inputs = await self.plc.read_inputs()  # a trigger held across a (re)connection is not a new one
         except DeviceError as exc:
             self.attempts += 1

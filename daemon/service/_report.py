@@ -11,11 +11,13 @@ import asyncio
 import contextlib
 import logging
 import time
+from pathlib import Path
 from typing import Any
 
 from monoguide.daemon.config import ServiceConfig
-from monoguide.daemon.cycle import Cause, CycleStateMachine, State
-from monoguide.daemon.service._cycle_task import Abort, Outcome
+from monoguide.daemon.cycle import Cause, CycleStateMachine, State, wait_images
+from monoguide.daemon.errors import CycleUnexpected
+from monoguide.daemon.service._cycle_task import Abort, Outcome, unexpected
 from monoguide.daemon.service._devices import CellDevices
 from monoguide.daemon.service._journal import CycleEntry, Journal
 from monoguide.daemon.service._offsets import OffsetLedger
@@ -46,6 +48,8 @@ class CycleReport:
             machine.fire(Cause.FAILED, error=error)
         if error is not None:
             self.devices.lost(error)  # reopens the one device whose connection was lost (and says which)
+            # its PNGs on disk before its row names them (the operator page shows them; pruning sizes them once)
+            await asyncio.to_thread(wait_images, outcome.seen.images)
         started = time.monotonic()
         number = await self._commit(inputs, outcome)
         if number is None:
@@ -83,6 +87,31 @@ class CycleReport:
         self.housekeeping = asyncio.create_task(self._housekeeping(number, {"plc_journal": done - started,
                                                                            "cycle": done - triggered_at}))
 
+    async def failed_unexpectedly(self, inputs: PlcInputs, outcome: Outcome | None, exc: Exception) -> None:
+        """The report itself raised what it should not (a bug): the cycle is journaled if it was not yet (its error,
+        or this one) and, unless DONE was shown already, FAULT latches with :class:`CycleUnexpected` (the PLC may not
+        have been told the result); an offset the robot holds from a cycle the PLC was not told of is cleared."""
+        error = unexpected(exc, State.REPORTING)
+        if outcome is None:
+            outcome = Outcome(time.time())
+        if outcome.committed is None:
+            robot = self.devices.handle("robot")
+            if outcome.error is None and outcome.number is not None and robot is not None:
+                # a good cycle the PLC was not told of: the robot must not keep its offset
+                await asyncio.to_thread(self.ledger.clear_unreported, robot, outcome.number,
+                                        f"the report failed ({error.code})")
+            if outcome.error is None:
+                outcome.fail(error, State.REPORTING, exc)
+            try:
+                await asyncio.to_thread(self.journal.commit_cycle, journal_entry(outcome, inputs,
+                                                                                 self.journal.state_dir))
+            except MonoguideError as journal_error:
+                log.error("journal: the cycle that failed unexpectedly is not journaled: %s %s", journal_error.code,
+                          journal_error.message)
+        for cause in (Cause.FAILED, Cause.REPORT_FAILED):  # a cycle reported before the bug (DONE) stays reported
+            if self.machine.can(cause):
+                self.machine.fire(cause, error=error)
+
     async def finish_housekeeping(self) -> None:
         """Wait for the last cycle's housekeeping (before the next cycle, and at exit)."""
         if self.housekeeping is not None:
@@ -97,8 +126,10 @@ class CycleReport:
         if outcome.error is None and outcome.number is not None:
             intent_outcome = ("acknowledged", f"request {outcome.sequence} acknowledged with status 0")
         try:
-            return await asyncio.to_thread(self.journal.commit_cycle, journal_entry(outcome, inputs), outcome.number,
-                                           intent_outcome=intent_outcome)
+            entry = journal_entry(outcome, inputs, self.journal.state_dir)
+            outcome.committed = await asyncio.to_thread(self.journal.commit_cycle, entry, outcome.number,
+                                                        intent_outcome=intent_outcome)
+            return outcome.committed
         except MonoguideError as exc:
             if outcome.error is None and outcome.number is not None:
                 await asyncio.to_thread(self.ledger.clear_unreported, self.devices.handle("robot"), outcome.number,
@@ -136,27 +167,54 @@ class CycleReport:
                      pruned.bytes_freed / 1e6)
 
 
-def journal_entry(outcome: Outcome, inputs: PlcInputs) -> CycleEntry:
-    """The journal row of a finished (or failed) cycle."""
+def journal_entry(outcome: Outcome, inputs: PlcInputs, state_dir: Path | None = None) -> CycleEntry:
+    """The journal row of a finished (or failed) cycle: a failed one with every image it wrote and what each view
+    showed (its result's ``views`` and ``failure``, docs/journal.md), whatever stage it failed in."""
     m, s = outcome.measurement, outcome.solution
     timings = dict(getattr(m, "timings_s", None) or {})
     timings.update(outcome.timings_s)
     captures = list(getattr(m, "captures", None) or [])
+    images = [c.image_path for c in captures if c.image_path is not None]
+    if outcome.error is not None:
+        images = images or outcome.seen.image_paths()
     return CycleEntry(
         started_at=outcome.started_at, finished_at=time.time(), job=inputs.job, part_tag=inputs.part_tag,
-        record=getattr(m, "record", None), result=getattr(s, "result", None) or _refused_result(outcome.error),
+        record=getattr(m, "record", None),
+        result=getattr(s, "result", None) if outcome.error is None else _failed_result(outcome, state_dir),
         error=outcome.error,
         timings_s=timings,
         poses_at_capture=[c.T_b_f.tolist() for c in captures],
-        image_paths=[c.image_path for c in captures if c.image_path is not None],
+        image_paths=images,
     )
 
 
-def _refused_result(error: MonoguideError | None) -> dict[str, Any] | None:
-    """What a refused cycle's solve still measured: with reference marks, each camera's deviation (the journal keeps
-    it for ``monoguide health``); None otherwise."""
-    deviation = getattr(error, "camera_deviation", None)
-    return None if deviation is None else {"status": "error", "camera_deviation": deviation}
+def _failed_result(outcome: Outcome, state_dir: Path | None) -> dict[str, Any]:
+    """What a failed cycle still tells: the solve's result when it was refused after solving (its ``status`` then
+    ``error``), where it failed (stage, the exception's type, the view and the hole or mark not found, where it was
+    expected), every view visited with its image and what was found, and with reference marks each camera's deviation
+    (``monoguide health`` reads it)."""
+    at = outcome.seen.failed_at
+    failure = {"stage": outcome.stage.value if outcome.stage is not None else None, "exception": outcome.exception,
+               "unexpected": isinstance(outcome.error, CycleUnexpected), "view": at.view if at else None,
+               "point": at.point if at else None,
+               "expected_px": list(at.expected_px) if at is not None and at.expected_px is not None else None}
+    views = outcome.seen.views()
+    for view in views:
+        if view["image"] is not None and state_dir is not None:
+            view["image"] = _relative(view["image"], state_dir)
+    solved = getattr(outcome.solution, "result", None)  # refused after the solve: the pose that was refused
+    result: dict[str, Any] = {**(solved or {}), "status": "error", "failure": failure, "views": views}
+    deviation = getattr(outcome.error, "camera_deviation", None)
+    if deviation is not None:
+        result["camera_deviation"] = deviation
+    return result
+
+
+def _relative(path: str, state_dir: Path) -> str:
+    try:
+        return str(Path(path).resolve().relative_to(state_dir.resolve()))
+    except ValueError:
+        return path
 
 
 def result_registers(outcome: Outcome, number: int, inputs: PlcInputs) -> CycleResult:

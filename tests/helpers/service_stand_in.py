@@ -40,7 +40,8 @@ class StandIn:
     def close(self) -> None:
         return None
 
-    def measure(self, job: int, abort: threading.Event, abort_error: Callable[[], Exception]) -> Any:
+    def measure(self, job: int, abort: threading.Event, abort_error: Callable[[], Exception],
+                holes: bool = True, seen: Any = None) -> Any:
         while not self.release.wait(0.01):
             if abort.is_set():
                 raise abort_error()

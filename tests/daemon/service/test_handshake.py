@@ -231,7 +231,8 @@ async def test_a_device_lost_in_a_cycle_fails_it_and_is_reconnected(tmp_path: Pa
         return f"camera #{len(opened)}"
 
     class Unplugged(StandIn):
-        def measure(self, job: int, abort: threading.Event, abort_error: Callable[[], Exception]) -> Any:
+        def measure(self, job: int, abort: threading.Event, abort_error: Callable[[], Exception],
+                    holes: bool = True, seen: Any = None) -> Any:
             if len(opened) == 1:
                 raise DeviceDisconnected("camera 'cam-1': device gone")
             return super().measure(job, abort, abort_error)
