@@ -107,6 +107,14 @@ class KukaRobot(HandshakeRobot):
         assert self._latest is not None
         return report_to_status(self._latest)
 
+    def watch(self) -> None:
+        if self._channel is None:
+            raise DeviceDisconnected(f"{self.name}: not connected")
+        self._pump(0.0)  # what has arrived; the controller's close is DeviceDisconnected
+        if (silent := time.monotonic() - self._latest_at) > self.stale_timeout_s:
+            raise DeviceTimeout(f"{self.name}: no report from the controller for {silent:.1f} s (controller "
+                                "stalled, or its program stopped?)")
+
     def close(self) -> None:
         if self._channel is not None:
             self._channel.close()

@@ -145,6 +145,11 @@ class Robot(Protocol):
         """The robot's state now (actual flange pose, modes, handshake registers)."""
         ...
 
+    def watch(self) -> None:
+        """Between cycles: a :class:`DeviceError` when the link to the controller is gone or its reports have
+        stopped (``DeviceDisconnected``, ``DeviceTimeout``); never reconnects and never waits for a report."""
+        ...
+
     def move_to_measuring_pose(self, i: int, timeout_s: float | None = None) -> RobotStatus:
         """Request measuring pose ``i`` (0-based) and wait until the robot reports it in position; returns
         the status at that moment (its ``T_b_f`` is the actual flange pose to record with the capture)."""

@@ -15,6 +15,7 @@ The robot program must run with the TCP at the flange (``set_tcp(p[0,0,0,0,0,0])
 from __future__ import annotations
 
 import logging
+import select
 import socket
 import time
 
@@ -87,6 +88,15 @@ class RtdeChannel:
                 raise DeviceDisconnected(f"{self._name}: the controller closed the connection")
             self._buffer.extend(chunk)
 
+    def closed_by_peer(self) -> bool:
+        """The peer closed the connection (an end of stream waits to be read), looked at without waiting; what it
+        sent is left to :meth:`receive`."""
+        try:
+            readable, _, _ = select.select([self._sock], [], [], 0.0)
+            return bool(readable) and self._sock.recv(1, socket.MSG_PEEK) == b""
+        except (OSError, ValueError):  # ValueError: a closed socket
+            return True
+
     def close(self) -> None:
         try:
             self._sock.close()
@@ -130,6 +140,10 @@ class RtdeInputClient:
     @property
     def is_open(self) -> bool:
         return self._channel is not None
+
+    def closed_by_controller(self) -> bool:
+        """Whether the controller has closed this connection (looked at without waiting)."""
+        return self._channel is not None and self._channel.closed_by_peer()
 
     def send_request(self, request: rtde.RobotRequest) -> None:
         """One data package carrying the whole request (sequence, command, pose number, offset)."""
@@ -217,6 +231,14 @@ class UrRobot(HandshakeRobot):
             in_position=in_position, ack_sequence=ack, program_status=program_status, timestamp_s=timestamp,
             held_sequence=held, offset_valid=valid == 1,
         )
+
+    def watch(self) -> None:
+        if not self._worker.alive or not self._inputs.is_open:
+            raise DeviceDisconnected(f"{self.name}: not connected")
+        if self._inputs.closed_by_controller():
+            self._inputs.close()
+            raise DeviceDisconnected(f"{self.name}: the controller closed the RTDE input connection")
+        self.status()  # both links open: no reconnect; the receive side's loss or stale data raises
 
     def close(self) -> None:
         self._inputs.close()

@@ -71,6 +71,21 @@ class Line:
             await asyncio.sleep(0.005)
         raise AssertionError(f"PLC: no {what} within {timeout_s} s (status {await self.status()!r})")
 
+    async def trigger(self, job: int | None = None, tag: int | None = None, timeout_s: float = 60.0) -> Status:
+        """TRIGGER as docs/plc-interface.md tells a PLC to raise it: on READY; when READY falls before BUSY shows (a
+        device was lost meanwhile: the trigger is ignored), drop it, wait for READY again and raise it again. Returns
+        the first status with BUSY, DONE or FAULT."""
+        deadline = asyncio.get_running_loop().time() + timeout_s
+        started = Status.BUSY | Status.DONE | Status.FAULT
+        while True:
+            await self.wait(lambda s: Status.READY in s, "READY", deadline - asyncio.get_running_loop().time())
+            await self.control(Control.TRIGGER, job=job, tag=tag)
+            status = await self.wait(lambda s: bool(s & started) or Status.READY not in s, "BUSY, its end or READY "
+                                     "falling", max(deadline - asyncio.get_running_loop().time(), WAIT_S))
+            if status & started:
+                return status
+            await self.control(0)  # ignored: READY fell first
+
     async def outputs(self) -> Any:
         return decode_outputs(await self.server.read(STATUS, BLOCK_SIZE - STATUS))
 

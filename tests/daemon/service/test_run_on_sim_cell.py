@@ -240,7 +240,7 @@ async def test_a_lost_robot_is_named_and_only_it_is_reconnected(cell: dict[str, 
         service = await _run(cell["config"], state_dir)
         await line.wait(lambda s: Status.READY in s, "READY", START_S)
         await _robot_fault(cell, "drop")  # the controller closes every connection at each request
-        await line.control(Control.TRIGGER, job=1, tag=600)
+        await line.trigger(job=1, tag=600, timeout_s=START_S)  # READY may fall first: the link is gone
         assert await line.wait(lambda s: Status.DONE in s, "DONE", CYCLE_S) == Status.DONE | Status.ERROR
         assert (await line.outputs()).result.error_code == DeviceDisconnected.plc_code
         await _robot_fault(cell, "none")
@@ -251,6 +251,34 @@ async def test_a_lost_robot_is_named_and_only_it_is_reconnected(cell: dict[str, 
     assert code == 0, err
     assert "robot lost (DEVICE_DISCONNECTED" in err and "camera lost" not in err, err[-3000:]
     assert "camera: connected again" not in err  # the camera was never closed
+
+
+@in_own_event_loop
+async def test_a_robot_lost_while_idle_takes_ready_away_within_a_poll(cell: dict[str, Any]) -> None:
+    """READY means every device answers: the controller closing its connections while the cell waits for a trigger
+    takes READY away at once (not at the next trigger, which would fail 403), and READY comes back only when the
+    robot answers again; the next part is measured as usual."""
+    state_dir = cell["tmp"] / "state-idle-loss"
+    async with plc_line(PLC_HOST, PLC_PORT) as line:
+        service = await _run(cell["config"], state_dir)
+        await line.wait(lambda s: Status.READY in s, "READY", START_S)
+        await asyncio.sleep(0.5)  # settled: nothing else under way
+        start = asyncio.get_running_loop().time()
+        await _robot_fault(cell, "drop")  # every connection closed now, and at every request after
+        await line.wait(lambda s: Status.READY not in s, "READY gone", 1.0)
+        lost_after = asyncio.get_running_loop().time() - start
+        await asyncio.sleep(1.0)
+        assert Status.READY not in await line.status()  # reconnecting to a controller that drops each request
+        await _robot_fault(cell, "none")
+        status = await line.trigger(job=1, tag=650, timeout_s=START_S)
+        assert Status.BUSY in status or Status.DONE in status
+        assert await line.wait(lambda s: Status.DONE in s, "DONE", CYCLE_S) == Status.DONE | Status.RESULT_OK
+        await line.acknowledge()
+        service.send_signal(signal.SIGTERM)
+        code, err = await _exit(service)
+    assert code == 0, err
+    assert lost_after < 1.0, lost_after
+    assert "robot lost (DEVICE_DISCONNECTED" in err, err[-3000:]
 
 
 def test_an_empty_state_dir_is_a_usage_error(tmp_path: Path) -> None:
@@ -326,9 +354,9 @@ async def test_a_controller_cut_at_every_millisecond_of_the_write_leaves_no_offs
             down_s = 0.05 if ms % 2 == 0 else 1.0  # back at once (as a cable blip), or after a second
             await line.wait(lambda s: Status.READY in s, "READY", START_S)
             await _robot_fault(cell, f"cut-after-offset {ms} {down_s}")
-            await line.control(Control.TRIGGER, job=1, tag=500 + ms)
-            # with the controller still down from the last cut, the cycle ends in 403 within a poll: BUSY or its end
-            await line.wait(lambda s: bool(s & (Status.BUSY | Status.DONE | Status.FAULT)), "BUSY (or its end)")
+            # the controller still down from the last cut takes READY away (within a poll): the trigger is raised
+            # again once READY is back, as a PLC does
+            await line.trigger(job=1, tag=500 + ms, timeout_s=START_S)
             status = await line.wait(lambda s: bool(s & (Status.DONE | Status.FAULT)), "DONE or FAULT", CYCLE_S)
             out = (await line.outputs()).result
             with Journal(state_dir) as journal:
