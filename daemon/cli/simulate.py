@@ -69,6 +69,9 @@ def simulate(
         list[str] | None, typer.Option("--fault", help="with --faults: only this one, e.g. 'robot stall', or a "
                                                        "calibration fault, e.g. 'camera bump 0.1 0' (repeatable)")
     ] = None,
+    fail_every: Annotated[int, typer.Option(
+        "--fail-every", min=0, help="one part in N meets a one-grab camera failure (black, occluded in turn; 0: none): "
+                                    "a line's everyday refusals, the service's memory over them")] = 0,
     config: Annotated[Path | None, typer.Option("--config", "-c", help="simulated cell config (TOML)")] = None,
     marks: Annotated[bool, typer.Option(
         "--marks", help="the simulated roof cell with fixed reference marks (sim-cell-marks.toml)")] = False,
@@ -110,7 +113,7 @@ def simulate(
     work = Path(work_dir) if work_dir is not None else Path(tempfile.mkdtemp(prefix="monoguide-simulate-"))
     keep = work_dir is not None
     options = RunOptions(config or default_config(), work, cycles, seed, robot, perfect_robot, faults, host, names,
-                         calibration, _job_numbers(jobs))
+                         calibration, _job_numbers(jobs), fail_every)
     page = start_web_page(web, work / "state", options.config)  # --web: the page, until the command ends
     try:
         with _progress(err, cycles) as progress:

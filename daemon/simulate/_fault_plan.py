@@ -53,6 +53,11 @@ FAULT_PLAN: tuple[Fault, ...] = (
     ("plc", "heartbeat-stopped", ("PLC_HEARTBEAT_LOST", "CYCLE_ABORTED")),
 )
 
+# ``--fail-every N``: one part in N meets one of these, in turn (a one-grab camera failure: the cycle fails in its
+# hole finding, the costliest way to fail — the soak's failed cycles)
+PERIODIC_FAILURES: tuple[Fault, ...] = tuple(f for f in FAULT_PLAN
+                                             if f[0] == "camera" and f[1] in ("black", "occluded"))
+
 # the codes with which today's cycle may refuse a cycle under a calibration fault (it may also not refuse it)
 CALIBRATION_CODES: tuple[str, ...] = ("CALIBRATION_SUSPECT", "INCONSISTENT_MEASUREMENT", "RESIDUAL_TOO_LARGE")
 # the faults of the calibration-health table (docs/health.md), and a focal change and a pose drift
@@ -132,9 +137,11 @@ class FaultInjector:
     clears them (see the module's doc); :attr:`injected` says which fault went with which part."""
 
     def __init__(self, send: Callable[[str], None], total: int, plan: tuple[Fault, ...], heartbeat_timeout_s: float,
-                 note: Callable[[str], None], clear_latch: Callable[[str], None] | None = None) -> None:
+                 note: Callable[[str], None], clear_latch: Callable[[str], None] | None = None,
+                 fail_every: int = 0) -> None:
         self._send, self._note, self._clear_latch = send, note, clear_latch
         self._schedule = _schedule(total, plan)
+        self._fail_every = fail_every  # also one part in this many fails (PERIODIC_FAILURES); 0: none
         self._heartbeat_timeout_s = heartbeat_timeout_s
         # (command, at monotonic time; None: after its parts, how many are left)
         self._clear: tuple[str, float | None, int] | None = None
@@ -145,7 +152,10 @@ class FaultInjector:
         due before part ``done + 1`` (once)."""
         if self._clear is not None and self._clear[1] is not None and now >= self._clear[1]:
             self._clear_now()
-        if done not in self._schedule or any(f.cycle == done + 1 for f in self.injected):
+        if any(f.cycle == done + 1 for f in self.injected):
+            return
+        if done not in self._schedule:
+            self._fail_periodically(done)
             return
         (device, name, expected), parts = self._schedule[done]
         if self._clear is not None:  # the previous fault ends before the next one starts
@@ -160,6 +170,14 @@ class FaultInjector:
             self._clear = ("plc none", now + HEARTBEAT_CLEAR_AFTER * self._heartbeat_timeout_s, 0)
         elif device != "camera":
             self._clear = (f"{device} none", None, 1)
+
+    def _fail_periodically(self, done: int) -> None:
+        """Part ``done + 1`` is one in ``fail_every``: a one-grab camera failure (none while another fault is on)."""
+        if not self._fail_every or (done + 1) % self._fail_every or self._clear is not None:
+            return
+        device, name, expected = PERIODIC_FAILURES[(done + 1) // self._fail_every % len(PERIODIC_FAILURES)]
+        self._send(f"{device} {name} 1")
+        self.injected.append(InjectedFault(done + 1, device, name, expected))
 
     def part_done(self) -> None:
         """A part finished: clear the fault whose parts are done."""

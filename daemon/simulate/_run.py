@@ -57,6 +57,7 @@ class RunOptions:
     fault_names: tuple[str, ...] = ()  # "device name" of FAULT_PLAN, or calibration faults, to inject (empty: all)
     calibration: Path | None = None  # the service runs with this file's calibration values (the cell: config's)
     jobs: tuple[int, ...] = ()  # the part types the line brings, in turn (empty: every job of the config in turn)
+    fail_every: int = 0  # one part in this many meets a one-grab camera failure (0: none); with or without faults
 
 
 @dataclass
@@ -167,7 +168,7 @@ def _play(options: RunOptions, cell: DerivedCell, sim: Child, service: Child, pr
     records: list[dict[str, Any]] = []
     samples: list[dict[str, float]] = []
     injector = FaultInjector(sim.send, total, plan, float(cell.data["plc"].get("heartbeat_timeout_s", 2.0)),
-                             progress.note, lambda why: request_clear(cell.state_dir, why))
+                             progress.note, lambda why: request_clear(cell.state_dir, why), options.fail_every)
     part_timeout = FAULT_PART_TIMEOUT_S if options.faults else PART_TIMEOUT_S
     deadline = time.monotonic() + SERVICE_START_TIMEOUT_S + part_timeout
     service_gone_at: float | None = None
