@@ -14,7 +14,8 @@ beside its comments, or into a new one.
 
 tomlkit files the comment lines above a table header under the table before it: a key appended to that table
 lands below them, and a table replaced takes them along (python-poetry/tomlkit#295).
-:func:`add_after_last_value` and :func:`replace_section` keep such comments above the table they introduce.
+:func:`add_after_last_value` and :func:`replace_section` keep such comments above the table they introduce, with
+tomlkit's public API only (no private method of tomlkit, which may go in any release: tests/test_private_api.py).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from collections.abc import Iterable, Mapping, MutableMapping, Sequence
 from typing import Any
 
 import tomlkit
+from tomlkit import TOMLDocument
 from tomlkit.items import AoT, Array, Comment, InlineTable, Item, Table, Whitespace
 
 __all__ = ["MATRIX_DECIMALS", "add_after_last_value", "commented", "inline_table", "matrix", "number", "numbers",
@@ -31,6 +33,7 @@ __all__ = ["MATRIX_DECIMALS", "add_after_last_value", "commented", "inline_table
 MATRIX_DECIMALS = 12
 ROW_INDENT = "    "
 COMMENT_GAP = "  "  # two spaces between a value and its comment, as the cell files are written
+_INSERT_HERE = "\x00"  # where add_after_last_value puts its line: TOML allows no NUL, so no document holds one
 
 
 def matrix(rows: Iterable[Sequence[float]], decimals: int | None = MATRIX_DECIMALS, *, multiline: bool = True,
@@ -91,16 +94,34 @@ def opening_comment(value: object) -> str | None:
     return rest.removeprefix("#").strip() if newline and rest.startswith("#") else None
 
 
-def add_after_last_value(table: Table | InlineTable | MutableMapping[str, Any], key: str, item: Item) -> None:
-    """Add ``key = item`` to ``table`` right after its last value: above the comments that end the table (they
-    introduce the next one) and above its sub-tables."""
-    if isinstance(table, Table):
-        last = next((k for k, v in reversed(table.value.body) if k is not None and not isinstance(v, Table | AoT)),
-                    None)
-        if last is not None:
-            table.value._insert_after(last, key, item)  # no public insert (tested: tomlkit 0.12, 0.15)
-            return
-    table[key] = item
+def add_after_last_value(doc: TOMLDocument, table: Table | InlineTable | MutableMapping[str, Any], key: str,
+                         item: Item) -> TOMLDocument:
+    """Add ``key = item`` to ``table`` (a table of ``doc``) right after its last value: above the comments that
+    end the table (they introduce the next one) and above its sub-tables. Returns the document that holds it.
+
+    tomlkit has no public way to put a key at a place in a table (only at its end, below those comments), so the
+    line goes into ``doc``'s text right after the last value's line and the text is parsed anew: the document
+    returned is a new one, and ``doc`` and its items are not to be used after. Where no place is to be kept
+    (``table`` an inline table, or with no value yet; ``key`` already in it) the key is set in ``table`` and
+    ``doc`` itself is returned."""
+    last = _last_value(table) if isinstance(table, Table) and key not in table else None
+    if last is None or isinstance(item, Table | AoT):
+        table[key] = item
+        return doc
+    trail = last.trivia.trail
+    last.trivia.trail = trail + _INSERT_HERE
+    try:
+        text = doc.as_string()
+    finally:
+        last.trivia.trail = trail
+    if text.count(_INSERT_HERE) != 1:
+        raise ValueError(f"cannot add {key!r}: the table given is not a table of the document")
+    line = tomlkit.document()
+    line[key] = item
+    added = last.trivia.indent.rpartition("\n")[2] + line.as_string()
+    if not trail.endswith("\n"):  # the last value ends the file without a newline
+        added = "\n" + added
+    return tomlkit.parse(text.replace(_INSERT_HERE, added))
 
 
 def replace_section(doc: MutableMapping[str, Any], name: str, new: Table | AoT) -> None:
@@ -119,6 +140,12 @@ def replace_section(doc: MutableMapping[str, Any], name: str, new: Table | AoT) 
             end.add(tomlkit.nl())  # a blank line before the next table (and the comments right above it)
         for comment in above_next:
             end.add(comment)
+
+
+def _last_value(table: Table) -> Item | None:
+    """The last value of ``table`` written as ``key = value`` (not a sub-table, not an array of tables)."""
+    values = [value for key, value in table.value.body if key is not None and not isinstance(value, Table | AoT)]
+    return values[-1] if values else None
 
 
 def _last_table(item: object) -> Table | None:

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Build the offline bundle for a cell PC without internet: one archive
 #   dist/monoguide-<version>-linux-x86_64-cp311.tar.gz
-# holding wheels/ (monoguide's wheel and the wheel of every dependency, for Linux x86-64 / CPython 3.11),
-# monoguide.service, install.sh and README.txt. On the cell PC: unpack it and run `sudo ./install.sh`
+# holding wheels/ (monoguide's wheel and the wheel of every dependency, for Linux x86-64 / CPython 3.11, each at
+# the version constraints.txt pins: what the tests ran with), monoguide.service, install.sh and README.txt. On the cell PC: unpack it and run `sudo ./install.sh`
 # (systemd/README.md). Needs Python 3.11 with pip and access to PyPI on the machine that builds it.
 #   bash scripts/bundle.sh [OUT_DIR]            (default: dist)
 set -euo pipefail
@@ -19,6 +19,8 @@ work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
 stage="$work/$name"
 mkdir -p "$stage/wheels" "$out"
+# the pinned versions (docs/dependencies.md): of the dependencies, and of the setuptools monoguide is built with
+export PIP_CONSTRAINT="$PWD/constraints.txt" PIP_BUILD_CONSTRAINT="$PWD/constraints.txt"
 echo "bundle: building the monoguide wheel" >&2
 "$py" -m pip wheel --quiet --no-deps --wheel-dir "$stage/wheels" .
 echo "bundle: downloading the wheels of its dependencies (Linux x86-64, CPython 3.11)" >&2

@@ -6,4 +6,4 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 . scripts/venv.sh test
-exec .venv/bin/monoguide simulate --config config/sim-cell.toml "$@"
+exec "$venv"/bin/monoguide simulate --config config/sim-cell.toml "$@"

@@ -112,7 +112,7 @@ def write_calibration(config_path: Path, steps: dict[str, dict[str, Any]], prove
               else _part_provenance(steps, provenance, raw, part, previous.name, now))
 
     for (table, index, key), (kind, value) in values.items():
-        _set(_calibrated_table(doc, table, index, config_path), key, kind, value)
+        doc = _set(doc, _calibrated_table(doc, table, index, config_path), key, kind, value)
     replace_section(doc, "calibration", _provenance_table(record))
 
     def check_then_keep_previous(written: Path) -> None:
@@ -375,8 +375,10 @@ def _calibrated_table(doc: tomlkit.TOMLDocument, table: str, index: int, path: P
     return node
 
 
-def _set(table: Table | InlineTable, key: str, kind: str, value: Any) -> None:
-    """Set a calibrated value; its comments (after it, after a matrix's opening bracket) stay."""
+def _set(doc: tomlkit.TOMLDocument, table: Table | InlineTable, key: str, kind: str, value: Any
+         ) -> tomlkit.TOMLDocument:
+    """Set a calibrated value in ``table`` of ``doc``; its comments (after it, after a matrix's opening bracket)
+    stay. Returns the document holding it (a new one where a key was added: :func:`add_after_last_value`)."""
     if kind == "integer":
         item: Item = tomlkit.item(int(value))
     elif kind == "number":
@@ -390,5 +392,5 @@ def _set(table: Table | InlineTable, key: str, kind: str, value: Any) -> None:
         item = matrix(value, comment=opening_comment(table[key]) if key in table else None)
     if key in table:
         table[key] = item
-    else:
-        add_after_last_value(table, key, item)
+        return doc
+    return add_after_last_value(doc, table, key, item)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import tomllib
 
 import numpy as np
+import pytest
 import tomlkit
 
 from monoguide.drivers.toml_format import (
@@ -80,14 +81,45 @@ def test_a_replaced_matrix_keeps_the_comments_after_its_brackets() -> None:
 
 def test_a_key_added_to_a_table_goes_above_the_comments_that_introduce_the_next_one() -> None:
     doc = tomlkit.parse(SOURCE)
-    add_after_last_value(doc["reference"], "T_cf_b", matrix(np.eye(4)))
-    add_after_last_value(doc["measuring_poses"][0], "points", [0])
+    doc = add_after_last_value(doc, doc["reference"], "T_cf_b", matrix(np.eye(4)))
+    doc = add_after_last_value(doc, doc["measuring_poses"][0], "points", tomlkit.item([0]))
     text = doc.as_string()
     assert "\n]  # from the tracker\nT_cf_b = [\n" in text
     assert "\n]\n\n# One [[measuring_poses]] per view\n[[measuring_poses]]\n" in text
     assert 'name = "S1"\npoints = [0]\n# a comment of S1\n' in text
+    one, nil = "1.000000000000", "0.000000000000"
+    rows = "".join(f"    [{', '.join(one if i == j else nil for j in range(4))}],\n" for i in range(4))
+    assert text == SOURCE.replace("tracker\n\n", f"tracker\nT_cf_b = [\n{rows}]\n\n").replace(
+        '"S1"\n', '"S1"\npoints = [0]\n')  # and nothing else of the file changed
     data = tomllib.loads(text)
     assert data["reference"]["T_cf_b"] == np.eye(4).tolist() and data["measuring_poses"][0]["points"] == [0]
+    assert doc["reference"]["T_cf_b"] == np.eye(4).tolist()  # the document returned holds it as a value
+
+
+def test_a_key_added_to_a_table_goes_above_its_sub_tables_and_keeps_its_indent() -> None:
+    source = ('[camera]\n  T_f_c = 1  # mounting\n\n  # its intrinsics\n  [camera.intrinsics]\n  fx = 2.0\n\n'
+              '[tracker]\nbaud = 3')  # no newline at the end
+    doc = tomlkit.parse(source)
+    doc = add_after_last_value(doc, doc["camera"], "serial", tomlkit.item("A1"))
+    doc = add_after_last_value(doc, doc["tracker"], "port", tomlkit.item("/dev/ttyUSB0"))  # the file's last line
+    assert doc.as_string() == source.replace("# mounting\n", '# mounting\n  serial = "A1"\n') + \
+        '\nport = "/dev/ttyUSB0"\n'
+    assert tomllib.loads(doc.as_string()) == {"camera": {"T_f_c": 1, "serial": "A1", "intrinsics": {"fx": 2.0}},
+                                              "tracker": {"baud": 3, "port": "/dev/ttyUSB0"}}
+
+
+def test_a_key_is_set_in_place_where_no_place_is_to_be_kept() -> None:
+    doc = tomlkit.parse('pose = { name = "S1" }\n[camera]\n[camera.intrinsics]\nfx = 2.0\n')
+    assert add_after_last_value(doc, doc["pose"], "points", tomlkit.item([0])) is doc
+    assert add_after_last_value(doc, doc["camera"], "serial", tomlkit.item("A1")) is doc  # no value yet
+    assert tomllib.loads(doc.as_string()) == {"pose": {"name": "S1", "points": [0]},
+                                              "camera": {"serial": "A1", "intrinsics": {"fx": 2.0}}}
+
+
+def test_a_table_of_another_document_is_refused_naming_the_key() -> None:
+    doc = tomlkit.parse(SOURCE)
+    with pytest.raises(ValueError, match=r"'T_cf_b'.*not a table of the document"):
+        add_after_last_value(doc, tomlkit.parse(SOURCE)["reference"], "T_cf_b", matrix(np.eye(4)))
 
 
 def test_a_replaced_section_leaves_the_comments_above_the_next_table() -> None:
