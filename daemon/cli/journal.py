@@ -73,15 +73,16 @@ def part_name(row: JournalRow) -> str | None:
 
 
 def cycle_summary(row: JournalRow) -> dict[str, Any]:
-    """The one-line facts of a cycle, as ``journal list --json`` prints them."""
+    """The one-line facts of a cycle, as ``journal list --json`` prints them (``damaged``: what of the row could
+    not be read, its values then empty)."""
     result = row.result or {}
     return {
         "number": row.number, "started_at": row.started_at, "finished_at": row.finished_at, "job": row.job,
         "part": part_name(row),
         "part_tag": row.part_tag, "status": row.status, "error_code": row.error_code, "plc_code": row.plc_code,
         "error_message": row.error_message, "rms_px": result.get("rms_px"), "rotation_deg": result.get("rotation_deg"),
-        "grasp_shift_mm": result.get("grasp_shift_mm"), "base_offset_xyzabc": result.get("base_offset_xyzabc"),
-        "duration_s": row.finished_at - row.started_at, "timings_s": row.timings_s,
+        "grasp_shift_mm": result.get("grasp_shift_mm"), "base_offset_xyzabc": row.base_offset_xyzabc,
+        "duration_s": row.duration_s, "timings_s": row.timings_s, "damaged": list(row.damaged),
     }
 
 
@@ -90,13 +91,16 @@ def print_cycle_lines(rows: list[JournalRow]) -> None:
     out = stdout_console()
     say(out, _columns([header for header, _ in LIST_COLUMNS]))
     for row in rows:
+        if row.damaged:  # its number, and why the rest cannot be trusted
+            say(out, f"{row.number:>{LIST_COLUMNS[0][1]}}  unreadable: {'; '.join(row.damaged)}")
+            continue
         s = cycle_summary(row)
         say(out, _columns([
             str(row.number), fmt.local_time(row.finished_at), fmt.text(row.job), fmt.text(part_name(row)),
             fmt.text(row.part_tag),
             "ok" if row.status == "ok" else f"{row.error_code} ({row.plc_code})", fmt.number(s["rms_px"], 3),
             fmt.number(s["rotation_deg"], 4), fmt.number(s["grasp_shift_mm"], 3), fmt.xyzabc(s["base_offset_xyzabc"]),
-            f"{s['duration_s']:.2f}", " ".join(f"{stage} {seconds:.3f}" for stage, seconds in row.timings_s.items()),
+            fmt.number(s["duration_s"], 2), " ".join(f"{stage} {sec:.3f}" for stage, sec in row.timings_s.items()),
         ]))
 
 
@@ -109,7 +113,8 @@ def list_cycles(
     json_output: JsonOption = False,
 ) -> None:
     """One line per cycle, newest last: number, time, job, part, part tag, status or error code, RMS, rotation,
-    grasp shift, base offset, durations. With --json one object per line."""
+    grasp shift, base offset, durations; a damaged row as its number and what is unreadable. With --json one object
+    per line."""
     def run() -> None:
         with open_journal(state_dir) as journal:
             if job is None:
@@ -172,6 +177,10 @@ def resolve(
         T_f_c = load_cell_config(config).camera.T_f_c if config is not None else None
         with open_journal(state_dir) as journal:
             row = journal.cycle(number)
+        unreadable = _damage_of(row, "record_json")
+        if unreadable:
+            raise CycleWithoutRecord(f"cycle {number}: its measurement record is unreadable ({unreadable}); nothing "
+                                     "to solve again")
         if row.record is None:
             raise CycleWithoutRecord(f"cycle {number} failed before its measurement record existed"
                                      f" ({row.error_code}: {row.error_message}); nothing to solve again")
@@ -180,6 +189,8 @@ def resolve(
             today["error"]["message"] = f"cycle {number}: {today['error']['message']}"
         stored = row.result if row.result is not None else {
             "status": "error", "error": {"code": row.error_code, "message": row.error_message}}
+        if _damage_of(row, "result_json"):
+            stored = {"status": "unreadable", "damaged": [_damage_of(row, "result_json")]}
         outcome.update(cycle=number, stored=stored, today=today, difference=_difference(stored, today))
         if json_output:
             _write_lines([json.dumps(outcome)])
@@ -201,15 +212,19 @@ def export(
     """Write the measurement records of cycles --from..--to as JSON lines, which `monoguide solve` reads.
 
     Records are as the cycle stored them; one without an id gets "cycle-N". Cycles that failed before
-    a record existed are skipped (counted on standard error)."""
+    a record existed are skipped (counted on standard error), and so are those whose record is unreadable (named
+    there)."""
     if first is not None and last is not None and first > last:
         raise typer.BadParameter(f"--from {first} lies after --to {last}", param_hint="--from")
 
     def run() -> None:
         with open_journal(state_dir) as journal:
             start, end = first or 1, last or journal.cycle_counter()
-            lines, skipped = [], 0
+            lines, skipped, unreadable = [], 0, []
             for row in _cycles(journal, start, end):
+                if _damage_of(row, "record_json"):
+                    unreadable.append(str(row.number))
+                    continue
                 if row.record is None:
                     skipped += 1
                     continue
@@ -223,12 +238,18 @@ def export(
             except OSError as exc:
                 raise JournalError(f"cannot write {output}: {exc.strerror or exc}") from exc
         where = "standard output" if output is None else str(output)
+        damaged = f"; cycles {', '.join(unreadable)} skipped: their record is unreadable" if unreadable else ""
         say(stderr_console(), f"exported {len(lines)} records of cycles {start}..{end} to {where}"
-               f" ({skipped} cycles without a record skipped)")
+               f" ({skipped} cycles without a record skipped{damaged})")
     reporting_errors(run)
 
 
 # --- private ------------------------------------------------------------------------------------
+
+
+def _damage_of(row: JournalRow, column: str) -> str:
+    """Why ``column`` of ``row`` is unreadable ("" when it is sound)."""
+    return next((why for why in row.damaged if why.startswith(f"{column}: ")), "")
 
 
 def _cycles(journal: Journal, start: int, end: int) -> Iterator[JournalRow]:
@@ -260,41 +281,45 @@ def _difference(stored: dict[str, Any], today: dict[str, Any]) -> dict[str, Any]
 
 
 def _print_cycle(row: JournalRow, images: list[Path], intent: OffsetIntent | None = None) -> None:
+    """``journal show``: the row as far as it can be read; a damaged row says first what is unreadable."""
     import numpy as np
 
     from monoguide.solver import frames
 
     out = stdout_console()
     outcome = "ok" if row.status == "ok" else f"{row.error_code} ({row.plc_code}): {row.error_message}"
-    lines = [
-        f"cycle {row.number}: {outcome}",
-        f"  started {fmt.local_time(row.started_at)}, finished {fmt.local_time(row.finished_at)}"
-        f" ({row.finished_at - row.started_at:.2f} s); job {fmt.text(row.job)}, part tag {fmt.text(row.part_tag)}",
+    lines = [f"cycle {row.number}: {outcome}"]
+    lines += [f"  UNREADABLE {why}" for why in row.damaged]
+    lines += [
+        f"  started {_time(row.started_at, _damage_of(row, 'started_at'))}, finished"
+        f" {_time(row.finished_at, _damage_of(row, 'finished_at'))}"
+        f" ({fmt.number(row.duration_s, 2)} s); job {fmt.text(row.job)}, part tag {fmt.text(row.part_tag)}",
         "  timings s: " + (", ".join(f"{stage} {s:.3f}" for stage, s in row.timings_s.items()) or "-"),
-        "  offset sent to the robot: " + ("no" if intent is None else
-                                          f"request {intent.sequence}, x y z mm, a b c deg: "
-                                          f"{fmt.xyzabc(list(intent.registers))}; "
-                                          + (f"{intent.outcome}" + (", then cleared" if intent.cleared else "")
-                                             if intent.outcome else "NOT SETTLED: the robot may hold it")),
+        "  offset sent to the robot: " + _intent_text(intent),
+        f"  base offset x y z mm, a b c deg: {fmt.xyzabc(row.base_offset_xyzabc) or '-'}",
     ]
     result = row.result
     if result is not None and result.get("status") == "ok":
+        def number(key: str, digits: int) -> str:  # a check job's result has no pose: "-"
+            return fmt.number(result.get(key), digits)
+
         lines += [
-            f"  result: rms {result['rms_px']:.3f} px, rotation {result['rotation_deg']:.4f} deg, grasp shift"
-            f" {result['grasp_shift_mm']:.3f} mm, σ {result['sigma_rot_deg']:.4f} deg {result['sigma_trans_mm']:.3f}"
-            f" mm, method {result['method']}",
-            f"  base offset x y z mm, a b c deg: {fmt.xyzabc(result.get('base_offset_xyzabc')) or '- (no T_b_s1)'}",
-            "  T_s1_w: " + json.dumps(result["T_s1_w"]),
+            f"  result: rms {number('rms_px', 3)} px, rotation {number('rotation_deg', 4)} deg, grasp shift"
+            f" {number('grasp_shift_mm', 3)} mm, σ {number('sigma_rot_deg', 4)} deg {number('sigma_trans_mm', 3)}"
+            f" mm, method {fmt.text(result.get('method'))}",
+            "  T_s1_w: " + ("-" if result.get("T_s1_w") is None else json.dumps(result["T_s1_w"])),
         ]
     record = row.record
     if record is None:
-        lines.append("  record: none (the cycle failed before one existed)")
+        lines.append("  record: unreadable" if _damage_of(row, "record_json")
+                     else "  record: none (the cycle failed before one existed)")
     else:
-        lines.append(f"  record: id {record.get('id')}, {len(record['views'])} views,"
-                     f" {len(record['observations'])} observations, sigma {record.get('sigma_px', 0.1)} px,"
+        observations = record.get("observations", [])
+        lines.append(f"  record: id {record.get('id')}, {len(record.get('views', []))} views,"
+                     f" {len(observations)} observations, sigma {record.get('sigma_px', 0.1)} px,"
                      f" T_b_s1 {fmt.yes(record.get('T_b_s1'))}, truth {fmt.yes(record.get('truth'))}")
         lines += [f"    view {o['view']} point {o['point']}: pixel {o['pixel'][0]:.3f} {o['pixel'][1]:.3f}"
-                  for o in record["observations"]]
+                  for o in observations]
     lines.append(f"  robot poses at capture (T_b_f), x y z mm, a b c deg: {len(row.poses_at_capture) or 'none'}")
     lines += [f"    capture {i + 1}: {fmt.xyzabc(list(frames.T_to_kuka_frame(np.array(T))))}"
               for i, T in enumerate(row.poses_at_capture)]
@@ -305,6 +330,21 @@ def _print_cycle(row: JournalRow, images: list[Path], intent: OffsetIntent | Non
         say(out, line)
 
 
+def _time(unix_s: float, damage: str) -> str:
+    return "unreadable" if damage else fmt.local_time(unix_s)
+
+
+def _intent_text(intent: OffsetIntent | None) -> str:
+    """The offset sent to the robot and what became of it, as ``journal show`` says it."""
+    if intent is None:
+        return "no"
+    offset = fmt.xyzabc(list(intent.registers)) if intent.registers else "unreadable"
+    fate = (intent.outcome + (", then cleared" if intent.cleared else "") if intent.outcome
+            else "NOT SETTLED: the robot may hold it")
+    damaged = "".join(f" (UNREADABLE {why})" for why in intent.damaged)
+    return f"request {intent.sequence}, x y z mm, a b c deg: {offset}; {fate}{damaged}"
+
+
 def _print_resolve(outcome: dict[str, Any], truth_error: tuple[float, float] | None, row: JournalRow) -> None:
     out = stdout_console()
     stored, today, diff = outcome["stored"], outcome["today"], outcome["difference"]
@@ -313,7 +353,9 @@ def _print_resolve(outcome: dict[str, Any], truth_error: tuple[float, float] | N
         return fmt.number(result.get(key), digits) if result.get("status") == "ok" else "-"
 
     def state(result: dict[str, Any]) -> str:
-        return "ok" if result["status"] == "ok" else result["error"]["code"]
+        if result.get("status") in ("ok", "unreadable"):
+            return str(result["status"])
+        return str((result.get("error") or {}).get("code") or row.error_code)
 
     rows = [("status", state(stored), state(today), ""),
             ("rms px", field(stored, "rms_px", 3), field(today, "rms_px", 3), ""),

@@ -12,7 +12,8 @@ cut too. The price is one fsync per cycle (cycles are seconds apart) — nothing
 is then given: the natural order is journal first, PLC after.
 
 **An intent before every offset.** Before an offset goes to the robot, :meth:`Journal.commit_intent` commits
-it (the cycle's number, the robot request's sequence number, the six numbers) in the table ``offset_intent``;
+it (the cycle's number, the robot request's sequence number, the six numbers, the cycle's job, part tag and start)
+in the table ``offset_intent``;
 the cycle's row and the intent's outcome are committed together afterwards (:meth:`Journal.commit_cycle` with
 ``intent_outcome``). An intent without an outcome (the controller lost mid-write, the service killed between
 the robot's acknowledgement and the commit) is settled against what the robot says it holds
@@ -24,15 +25,16 @@ modulo 65536. A journal that was recreated continues after the number the PLC la
 journal deleted or replaced under a running service is :class:`JournalReplaced`, never a silent write into an
 unlinked file.
 
+**A damaged row costs that row alone.** Reading never raises for what a row holds: a column that cannot be
+decoded reads as its empty value and the row's ``damaged`` says which and why (``_journal_rows``).
+
 Images live under ``<state dir>/images``; :meth:`Journal.prune_images` deletes those of the oldest
 cycles beyond a size or age limit and marks their rows (the row itself is kept).
 """
 
 from __future__ import annotations
 
-import json
 import os
-import sqlite3
 import time
 from pathlib import Path
 
@@ -40,38 +42,39 @@ from monoguide.daemon.errors import (
     JournalEntryInvalid,
     JournalEntryMissing,
     JournalError,
-    JournalNotADatabase,
     JournalReplaced,
-    JournalSchemaUnknown,
 )
+from monoguide.daemon.service._journal_open import open_for_writing, open_read_only
 from monoguide.daemon.service._journal_query import CycleQuery, error_codes, find_cycles
+from monoguide.daemon.service._journal_rows import (
+    JournalRow,
+    OffsetIntent,
+    decoded_json,
+    images_shape,
+    intent_from_row,
+    journal_text,
+    row_from,
+    timings_shape,
+)
 from monoguide.daemon.service._journal_schema import (
-    _COLUMNS,
-    _INDEX_SCHEMA,
-    _INTENT_COLUMNS,
-    _INTENT_SCHEMA,
-    _SCHEMA,
     APPLICATION_ID,
-    BUSY_TIMEOUT_MS,
-    FILTER_INDEX_SCHEMA,
     IMAGES_DIR,
     INTENT_OUTCOMES,
     JOURNAL_FILE,
     LAST_CYCLES_QUERY,
     MAX_NUMBER,
     PRUNE_QUERY,
-    READABLE_VERSIONS,
     SCHEMA_VERSION,
     CycleEntry,
-    JournalRow,
-    OffsetIntent,
     PruneReport,
     SqliteErrors,
+    checked_duration,
+    cycle_select,
     dumps,
     file_size,
-    intent_from_row,
+    intent_select,
+    last_cycles_query,
     outcome_of,
-    row_from,
 )
 
 __all__ = ["APPLICATION_ID", "INTENT_OUTCOMES", "JOURNAL_FILE", "LAST_CYCLES_QUERY", "PRUNE_QUERY", "SCHEMA_VERSION",
@@ -94,18 +97,22 @@ class Journal:
         self.images_dir = self.state_dir / IMAGES_DIR
         self.read_only = read_only
         self.immutable = False  # read-only and opened `immutable`: it sees no later commit (reopen it then)
-        if read_only:
-            self._db = self._open_read_only()
-            self._identity = self._file_identity()
-            self._image_sizes: dict[str, int] = {}
-            return
-        try:
-            self.images_dir.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise JournalError(f"journal {self.path}: cannot create {self.images_dir}: {exc}") from exc
-        self._db = self._open()
-        self._identity = self._file_identity()
         self._image_sizes: dict[str, int] = {}  # stored image path -> bytes, looked up once (prune_images)
+        if read_only:
+            self._db, self.version, self.immutable = open_read_only(self.path)
+        else:
+            try:
+                self.images_dir.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise JournalError(f"journal {self.path}: cannot create {self.images_dir}: {exc}") from exc
+            self._db, self.version = open_for_writing(self.path), SCHEMA_VERSION
+        self._db.text_factory = journal_text  # text that is not UTF-8 damages its row, not the query
+        self._identity = self._file_identity()
+        # self.version: the file's schema version. A reader reads the journal as that version holds it (the service
+        # has upgraded it to SCHEMA_VERSION): what it does not hold reads as null
+        self._cycle_select = cycle_select(self.version)
+        self._last_cycles = last_cycles_query(self.version)
+        self._intent_select = intent_select(self.version)
 
     def close(self) -> None:
         self._db.close()
@@ -132,14 +139,14 @@ class Journal:
             number, entry.started_at, entry.finished_at, entry.job, entry.part_tag, status, error_code, plc_code,
             message, dumps("record", entry.record), dumps("result", entry.result),
             dumps("timings_s", entry.timings_s), dumps("poses_at_capture", entry.poses_at_capture),
-            dumps("image_paths", [self._relative(p) for p in entry.image_paths]),
+            dumps("image_paths", [self._relative(p) for p in entry.image_paths]), checked_duration(entry),
         )
         self.check_identity()
         with self._sqlite("commit a cycle"), self._db:
             cursor = self._db.execute(
                 "INSERT INTO cycle (number, started_at, finished_at, job, part_tag, status, error_code, plc_code,"
-                " error_message, record_json, result_json, timings_json, poses_json, images_json)"
-                " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                " error_message, record_json, result_json, timings_json, poses_json, images_json, duration_s)"
+                " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 row,
             )
             committed = int(cursor.lastrowid)
@@ -151,14 +158,18 @@ class Journal:
         """The number the next committed cycle gets (the counter + 1)."""
         return self.cycle_counter() + 1
 
-    def commit_intent(self, cycle: int, sequence: int, registers: tuple[float, ...], D_b: list[list[float]]) -> None:
+    def commit_intent(self, cycle: int, sequence: int, registers: tuple[float, ...], D_b: list[list[float]], *,
+                      job: int | None = None, part_tag: int | None = None, started_at: float | None = None) -> None:
         """Commit the offset of cycle ``cycle`` (request ``sequence``) before it is sent: when this raises,
-        nothing may be sent. ``registers``: x y z (mm) A B C (deg) as the PLC shows them; ``D_b`` the 4x4."""
+        nothing may be sent. ``registers``: x y z (mm) A B C (deg) as the PLC shows them; ``D_b`` the 4x4.
+        ``job``, ``part_tag`` (PLC registers 1 and 3), ``started_at`` (Unix s): the cycle's, for the row rebuilt
+        from the intent when the service ends before the cycle's own row is committed."""
         offset = dumps("offset", {"registers": [float(v) for v in registers], "D_b": D_b})
         self.check_identity()
         with self._sqlite(f"commit the offset intent of cycle {cycle}"), self._db:
-            self._db.execute("INSERT INTO offset_intent (cycle, sequence, offset_json, intended_at)"
-                             " VALUES (?, ?, ?, ?)", (cycle, sequence, offset, time.time()))
+            self._db.execute("INSERT INTO offset_intent (cycle, sequence, offset_json, intended_at, job, part_tag,"
+                             " started_at) VALUES (?, ?, ?, ?, ?, ?, ?)",
+                             (cycle, sequence, offset, time.time(), job, part_tag, started_at))
 
     def settle_intent(self, cycle: int, outcome: str, detail: str, *, cleared: bool = False) -> None:
         """Record what became of cycle ``cycle``'s offset (``INTENT_OUTCOMES``) and whether monoguide cleared
@@ -168,23 +179,27 @@ class Journal:
             self._settle(cycle, outcome, detail, cleared=cleared)
 
     def intent(self, cycle: int) -> OffsetIntent | None:
+        if self._intent_select is None:  # a version-1 journal, read as it is: no intents yet
+            return None
         with self._sqlite(f"read the offset intent of cycle {cycle}"):
-            found = self._db.execute(f"SELECT {_INTENT_COLUMNS} FROM offset_intent WHERE cycle = ?",
-                                     (cycle,)).fetchone()
+            found = self._db.execute(f"{self._intent_select} WHERE cycle = ?", (cycle,)).fetchone()
         return None if found is None else intent_from_row(found)
 
     def unsettled_intents(self) -> list[OffsetIntent]:
         """Intents without an outcome, oldest first: offsets the robot may hold."""
+        if self._intent_select is None:
+            return []
         with self._sqlite("list unsettled offset intents"):
-            rows = self._db.execute(f"SELECT {_INTENT_COLUMNS} FROM offset_intent WHERE outcome IS NULL"
-                                    " ORDER BY cycle").fetchall()
+            rows = self._db.execute(f"{self._intent_select} WHERE outcome IS NULL ORDER BY cycle").fetchall()
         return [intent_from_row(found) for found in rows]
 
     def last_sequence(self) -> int:
         """The robot sequence number of the newest intent (0: none)."""
+        if self._intent_select is None:
+            return 0
         with self._sqlite("read the last offset intent"):
             found = self._db.execute("SELECT sequence FROM offset_intent ORDER BY cycle DESC LIMIT 1").fetchone()
-        return int(found[0]) if found else 0
+        return found[0] if found and isinstance(found[0], int) else 0
 
     def continue_numbering(self, after: int) -> bool:
         """A journal with no cycle yet numbers its first cycle ``after + 1`` (the PLC's register 13 showed
@@ -213,14 +228,19 @@ class Journal:
 
     def amend_timings(self, number: int, timings_s: dict[str, float]) -> None:
         """Add timings known only after the commit (``plc_journal``, ``cycle``: they include the commit and
-        the PLC's DONE) to cycle ``number``'s row; the rest of the row is never changed."""
+        the PLC's DONE) to cycle ``number``'s row; the rest of the row is never changed. Stored timings that
+        cannot be decoded are left as they are (:class:`JournalEntryInvalid`)."""
         self.check_identity()
         with self._sqlite(f"amend cycle {number}"), self._db:
             found = self._db.execute("SELECT timings_json FROM cycle WHERE number = ?", (number,)).fetchone()
             if found is None:
                 raise JournalEntryMissing(f"journal {self.path}: no cycle {number}")
+            stored, damaged = decoded_json("timings_json", found[0], timings_shape, {})
+            if damaged:
+                raise JournalEntryInvalid(f"journal {self.path}: cycle {number}: {damaged[0]}; its timings are not "
+                                          "amended")
             self._db.execute("UPDATE cycle SET timings_json = ? WHERE number = ?",
-                             (dumps("timings_s", {**json.loads(found[0]), **timings_s}), number))
+                             (dumps("timings_s", {**stored, **timings_s}), number))
 
     # --- reading ------------------------------------------------------------------------------------
 
@@ -235,7 +255,7 @@ class Journal:
             raise JournalEntryMissing(f"journal {self.path}: no cycle {number}: cycle numbers run from 1 to "
                                       f"{MAX_NUMBER} (counter {self.cycle_counter()})")
         with self._sqlite(f"read cycle {number}"):
-            found = self._db.execute(f"SELECT {_COLUMNS} FROM cycle WHERE number = ?", (number,)).fetchone()
+            found = self._db.execute(f"{self._cycle_select} WHERE cycle.number = ?", (number,)).fetchone()
         if found is None:
             raise JournalEntryMissing(f"journal {self.path}: no cycle {number} (counter {self.cycle_counter()})")
         return row_from(found)
@@ -247,14 +267,14 @@ class Journal:
     def last_cycles(self, count: int) -> list[JournalRow]:
         """The ``count`` most recent cycles, newest first."""
         with self._sqlite("list cycles"):
-            rows = self._db.execute(LAST_CYCLES_QUERY, (MAX_NUMBER, count)).fetchall()
+            rows = self._db.execute(self._last_cycles, (MAX_NUMBER, count)).fetchall()
         return [row_from(found) for found in rows]
 
     def find_cycles(self, query: CycleQuery) -> list[JournalRow]:
         """The cycles ``query`` filters (status, error code, job, time window), newest first, one page (below
         ``query.before``): each filter through an index of its own (``_journal_query``)."""
         with self._sqlite("find cycles"):
-            return find_cycles(self._db, query)
+            return find_cycles(self._db, query, select=self._cycle_select)
 
     def error_codes(self) -> list[str]:
         """Every error code the journal holds, sorted."""
@@ -291,7 +311,7 @@ class Journal:
         sizes = self._image_sizes
         cycles = []
         for number, finished_at, images in rows:
-            paths = json.loads(images)
+            paths = decoded_json("images_json", images, images_shape, [])[0]  # unreadable: no file known to delete
             for stored in paths:
                 if stored not in sizes:
                     sizes[stored] = file_size(self._absolute(stored))
@@ -317,77 +337,6 @@ class Journal:
         return PruneReport(len(pruned), files, freed)
 
     # --- private ------------------------------------------------------------------------------------
-
-    def _open_read_only(self) -> sqlite3.Connection:
-        if not self.path.is_file():
-            raise JournalError(f"journal {self.path}: no such file")
-        uri = self.path.resolve().as_uri()
-        db = None
-        for query in ("mode=ro", "mode=ro&immutable=1"):
-            try:
-                db = sqlite3.connect(f"{uri}?{query}", uri=True, timeout=BUSY_TIMEOUT_MS / 1000,
-                                     check_same_thread=False)
-                with self._sqlite("open read-only"):
-                    version = db.execute("PRAGMA user_version").fetchone()[0]
-                    application_id = db.execute("PRAGMA application_id").fetchone()[0]
-                self.immutable = "immutable" in query
-                break
-            except (sqlite3.Error, JournalError) as exc:
-                if db is not None:
-                    db.close()
-                    db = None
-                if isinstance(exc, JournalNotADatabase):  # the file itself: no other open mode can read it
-                    raise
-                if query.endswith("immutable=1"):
-                    raise JournalError(f"journal {self.path}: cannot open read-only: {exc}") from exc
-        assert db is not None
-        if application_id != APPLICATION_ID or version not in READABLE_VERSIONS:
-            db.close()
-            raise JournalSchemaUnknown(f"journal {self.path}: not a monoguide journal this monoguide reads "
-                                       f"(application_id {application_id:#x}, schema version {version}; reads "
-                                       f"{', '.join(map(str, READABLE_VERSIONS))})")
-        return db
-
-    def _open(self) -> sqlite3.Connection:
-        try:
-            # check_same_thread off: the service commits from a worker thread, one call at a time
-            db = sqlite3.connect(self.path, timeout=BUSY_TIMEOUT_MS / 1000, isolation_level="DEFERRED",
-                                 check_same_thread=False)
-        except sqlite3.Error as exc:
-            raise JournalError(f"journal {self.path}: cannot open: {exc}") from exc
-        try:
-            with self._sqlite("open"):
-                version = db.execute("PRAGMA user_version").fetchone()[0]
-                application_id = db.execute("PRAGMA application_id").fetchone()[0]
-                tables = db.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]
-            if version == 0 and application_id == 0 and tables == 0:
-                with self._sqlite("create the schema"):
-                    db.executescript(f"BEGIN; {_SCHEMA} {_INTENT_SCHEMA} {_INDEX_SCHEMA}"
-                                     f" PRAGMA application_id = {APPLICATION_ID};"
-                                     f" PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;")
-            elif application_id != APPLICATION_ID:
-                raise JournalSchemaUnknown(f"journal {self.path}: an SQLite database but not a monoguide journal"
-                                           f" (application_id {application_id:#x}, {tables} objects); refusing to"
-                                           " touch it — move it away or point --state-dir elsewhere")
-            elif version not in READABLE_VERSIONS:
-                newer = " (written by a newer monoguide?)" if version > SCHEMA_VERSION else ""
-                raise JournalSchemaUnknown(f"journal {self.path}: schema version {version}{newer}; this monoguide"
-                                           f" reads versions {', '.join(map(str, READABLE_VERSIONS))} only")
-            elif version < SCHEMA_VERSION:  # additive: the offset_intent table, the index of kept images
-                with self._sqlite(f"upgrade the schema from version {version}"):
-                    db.executescript(f"BEGIN; {_INTENT_SCHEMA} {_INDEX_SCHEMA} PRAGMA user_version = "
-                                     f"{SCHEMA_VERSION}; COMMIT;")
-            with self._sqlite("index what readers filter on"):
-                db.executescript(FILTER_INDEX_SCHEMA)
-            with self._sqlite("set WAL mode"):
-                mode = db.execute("PRAGMA journal_mode = WAL").fetchone()[0]
-                db.execute("PRAGMA synchronous = FULL")
-            if mode != "wal":
-                raise JournalError(f"journal {self.path}: SQLite refused WAL mode (got {mode!r})")
-        except BaseException:
-            db.close()
-            raise
-        return db
 
     def _settle(self, cycle: int, outcome: str, detail: str, *, cleared: bool) -> None:
         if outcome not in INTENT_OUTCOMES:

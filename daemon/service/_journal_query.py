@@ -16,7 +16,8 @@ import sqlite3
 from dataclasses import dataclass
 from typing import Any
 
-from monoguide.daemon.service._journal_schema import _COLUMNS, MAX_NUMBER, JournalRow, row_from
+from monoguide.daemon.service._journal_rows import JournalRow, row_from, stored_text
+from monoguide.daemon.service._journal_schema import MAX_NUMBER, SCHEMA_VERSION, cycle_select
 
 MAX_PAGE = 500  # rows in one answer, whatever is asked
 
@@ -34,11 +35,13 @@ class CycleQuery:
     limit: int = 50
 
 
-def find_cycles(db: sqlite3.Connection, query: CycleQuery) -> list[JournalRow]:
+def find_cycles(db: sqlite3.Connection, query: CycleQuery, *,
+                select: str = cycle_select(SCHEMA_VERSION)) -> list[JournalRow]:
     """The cycles ``query`` asks for, newest first, at most ``query.limit`` (and :data:`MAX_PAGE`).
 
     Two steps: the page's numbers from the index alone (a window's rows are sorted by number as index entries,
-    not as 6 kB rows), then those rows by their key."""
+    not as 6 kB rows), then those rows by their key. ``select``: the rows' ``SELECT`` as the journal's schema
+    version holds them (``_journal_schema.cycle_select``)."""
     conditions, values = _conditions(query)
     window = query.finished_from is not None or query.finished_to is not None
     hint = " INDEXED BY cycle_finished" if window and _has_index(db, "cycle_finished") else ""
@@ -47,19 +50,25 @@ def find_cycles(db: sqlite3.Connection, query: CycleQuery) -> list[JournalRow]:
         (*values, max(1, min(query.limit, MAX_PAGE)))).fetchall()]
     if not numbers:
         return []
-    rows = db.execute(f"SELECT {_COLUMNS} FROM cycle WHERE number IN ({', '.join('?' * len(numbers))})"
-                      " ORDER BY number DESC", numbers).fetchall()
+    rows = db.execute(f"{select} WHERE cycle.number IN ({', '.join('?' * len(numbers))})"
+                      " ORDER BY cycle.number DESC", numbers).fetchall()
     return [row_from(found) for found in rows]
 
 
 def error_codes(db: sqlite3.Connection) -> list[str]:
     """Every error code the journal holds, sorted (the filter's choices): from the ``(error_code, number)``
-    index, one step per distinct code, never a scan of the rows."""
+    index, one step per distinct code, never a scan of the rows. A code stored as text that is not UTF-8 is
+    stepped past by its stored bytes (its replacement characters may sort before them)."""
     codes: list[str] = []
     found = db.execute("SELECT min(error_code) FROM cycle WHERE error_code IS NOT NULL").fetchone()
     while found is not None and found[0] is not None:
-        codes.append(found[0])
-        found = db.execute("SELECT min(error_code) FROM cycle WHERE error_code > ?", (found[0],)).fetchone()
+        code = found[0]
+        if isinstance(code, bytes):  # a blob where a code belongs is no code; blobs sort after every text
+            found = db.execute("SELECT min(error_code) FROM cycle WHERE error_code > ?", (code,)).fetchone()
+            continue
+        codes.append(code)
+        found = db.execute("SELECT min(error_code) FROM cycle WHERE error_code > CAST(? AS TEXT)",
+                           (stored_text(code),)).fetchone()
     return codes
 
 

@@ -1,15 +1,16 @@
-"""The journal's SQL schema and the rows it holds, as the service writes them and readers read them back.
+"""The journal's SQL schema, its versions, and the entries the service writes into it.
 
-The tables (``cycle``, ``offset_intent``) and the partial index of the cycles whose images are kept, the queries a
-long journal runs without a scan, the typed rows (:class:`CycleEntry` in, :class:`JournalRow` and
-:class:`OffsetIntent` out) and their strict JSON encoding. docs/journal.md describes the same columns.
+The tables (``cycle``, ``offset_intent``), the upgrades of older schema versions, the partial index of the cycles
+whose images are kept, the queries a long journal runs without a scan (as each schema version holds the columns),
+the entry the service commits (:class:`CycleEntry`) and its strict JSON encoding (the rows read back are in
+``_journal_rows``). docs/journal.md describes the same columns.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import sqlite3
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -17,8 +18,10 @@ from typing import Any
 from monoguide.daemon.errors import JournalEntryInvalid, JournalError, JournalNotADatabase
 from monoguide.solver.errors import MonoguideError
 
-SCHEMA_VERSION = 2  # 2: the offset_intent table (version 1 journals are upgraded in place when opened)
-READABLE_VERSIONS = (1, 2)
+# 2: the offset_intent table; 3: the cycle's duration_s, the intent's job, part_tag, started_at. Older journals are
+# upgraded in place when the service opens them (_UPGRADES) and read as they are by the readers (cycle_select)
+SCHEMA_VERSION = 3
+READABLE_VERSIONS = (1, 2, 3)
 APPLICATION_ID = 0x4D4F4E4F  # "MONO": marks the file as a monoguide journal for `file` and for us
 JOURNAL_FILE = "journal.sqlite3"
 IMAGES_DIR = "images"
@@ -41,7 +44,8 @@ CREATE TABLE cycle (
     timings_json TEXT NOT NULL,                -- {"measuring": s, "solving": s, ...}
     poses_json TEXT NOT NULL,                  -- robot's actual T_b_f at each capture, 4x4 lists
     images_json TEXT NOT NULL,                 -- image paths, relative to the state directory when inside it
-    images_pruned_at REAL                      -- when prune_images deleted this cycle's image files
+    images_pruned_at REAL,                     -- when prune_images deleted this cycle's image files
+    duration_s REAL                            -- s, the service's monotonic clock; null in rows before version 3
 );
 """
 
@@ -54,10 +58,21 @@ CREATE TABLE IF NOT EXISTS offset_intent (
     outcome TEXT CHECK (outcome IN ('acknowledged', 'refused', 'held', 'not_held')),  -- null: not settled
     cleared INTEGER NOT NULL DEFAULT 0,        -- 1: monoguide then cleared the robot's offset (command 3)
     settled_at REAL,
-    detail TEXT
+    detail TEXT,
+    job INTEGER,                               -- the cycle's PLC register 1 (null in intents before version 3)
+    part_tag INTEGER,                          -- its PLC register 3
+    started_at REAL                            -- Unix s, the cycle's start
 );
 """
 INTENT_OUTCOMES = ("acknowledged", "refused", "held", "not_held")
+
+# from each older version to SCHEMA_VERSION, additive only (ALTER TABLE ADD COLUMN rewrites no row: instant on a
+# long journal); version 1 had no offset_intent table, created here in its version-3 form
+_UPGRADES = {
+    1: f"{_INTENT_SCHEMA} ALTER TABLE cycle ADD COLUMN duration_s REAL;",
+    2: "ALTER TABLE offset_intent ADD COLUMN job INTEGER; ALTER TABLE offset_intent ADD COLUMN part_tag INTEGER;"
+       " ALTER TABLE offset_intent ADD COLUMN started_at REAL; ALTER TABLE cycle ADD COLUMN duration_s REAL;",
+}
 
 # prune_images looks only at cycles whose images are still on disk: a partial index over those rows, so its cost
 # follows the images kept (bounded by [service] images_max_mb), not the journal's length
@@ -91,43 +106,7 @@ class CycleEntry:
     timings_s: dict[str, float] = field(default_factory=dict)
     poses_at_capture: list[list[list[float]]] = field(default_factory=list)
     image_paths: list[str] = field(default_factory=list)
-
-
-@dataclass(frozen=True)
-class JournalRow:
-    """A cycle read back from the journal."""
-
-    number: int
-    started_at: float
-    finished_at: float
-    job: int | None
-    part_tag: int | None
-    status: str
-    error_code: str | None
-    plc_code: int
-    error_message: str | None
-    record: dict[str, Any] | None
-    result: dict[str, Any] | None
-    timings_s: dict[str, float]
-    poses_at_capture: list[list[list[float]]]
-    image_paths: list[str]
-    images_pruned_at: float | None
-
-
-@dataclass(frozen=True)
-class OffsetIntent:
-    """An offset committed before it was sent to the robot, and what became of it (``outcome`` None: not
-    settled yet — the robot may hold it)."""
-
-    cycle: int
-    sequence: int
-    registers: tuple[float, ...]  # x, y, z (mm), A, B, C (deg): PLC registers 16-27
-    D_b: list[list[float]]
-    intended_at: float
-    outcome: str | None
-    cleared: bool
-    settled_at: float | None
-    detail: str | None
+    duration_s: float | None = None  # s, the cycle's duration on a monotonic clock (None: not measured)
 
 
 @dataclass(frozen=True)
@@ -155,21 +134,44 @@ class SqliteErrors:
             raise JournalError(f"journal {self.path}: cannot {self.doing} (SQLite: {exc})") from exc
 
 
-_COLUMNS = ("number, started_at, finished_at, job, part_tag, status, error_code, plc_code, error_message,"
-            " record_json, result_json, timings_json, poses_json, images_json, images_pruned_at")
+# the cycle's columns, as row_from reads them: qualified, since a cycle's row is read with its intent's offset
+_COLUMNS = ", ".join(f"cycle.{name}" for name in (
+    "number", "started_at", "finished_at", "job", "part_tag", "status", "error_code", "plc_code", "error_message",
+    "record_json", "result_json", "timings_json", "poses_json", "images_json", "images_pruned_at"))
 
 
-# a search from the newest number down (the primary key), never a scan of the table
-LAST_CYCLES_QUERY = f"SELECT {_COLUMNS} FROM cycle WHERE number <= ? ORDER BY number DESC LIMIT ?"
+def cycle_select(version: int) -> str:
+    """``SELECT`` of a cycle's columns and its intent's offset (``row_from``) in a journal of schema ``version``:
+    NULL for what that version does not hold. The intent is found by its key: no scan."""
+    if version < 2:
+        return f"SELECT {_COLUMNS}, NULL, NULL FROM cycle"
+    duration = "cycle.duration_s" if version >= 3 else "NULL"
+    return (f"SELECT {_COLUMNS}, {duration}, offset_intent.offset_json FROM cycle"
+            " LEFT JOIN offset_intent ON offset_intent.cycle = cycle.number")
+
+
+def last_cycles_query(version: int) -> str:
+    """A search from the newest number down (the primary key), never a scan of the table."""
+    return f"{cycle_select(version)} WHERE cycle.number <= ? ORDER BY cycle.number DESC LIMIT ?"
+
+
+def intent_select(version: int) -> str | None:
+    """``SELECT`` of an intent's columns (``intent_from_row``); None for a journal before the table (version 1)."""
+    if version < 2:
+        return None
+    cycle_facts = "job, part_tag, started_at" if version >= 3 else "NULL, NULL, NULL"
+    return ("SELECT cycle, sequence, offset_json, intended_at, outcome, cleared, settled_at, detail, "
+            f"{cycle_facts} FROM offset_intent")
+
+
+def upgrade_script(version: int) -> str:
+    """The transaction that brings a journal of ``version`` (1 or 2) to :data:`SCHEMA_VERSION`."""
+    return f"BEGIN; {_UPGRADES[version]} {_INDEX_SCHEMA} PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
+
+
+CYCLE_QUERY = f"{cycle_select(SCHEMA_VERSION)} WHERE cycle.number = ?"
+LAST_CYCLES_QUERY = last_cycles_query(SCHEMA_VERSION)
 PRUNE_QUERY = f"SELECT number, finished_at, images_json FROM cycle WHERE {_IMAGES_KEPT} ORDER BY number"
-_INTENT_COLUMNS = "cycle, sequence, offset_json, intended_at, outcome, cleared, settled_at, detail"
-
-
-def intent_from_row(found: Sequence[Any]) -> OffsetIntent:
-    cycle, sequence, offset, intended_at, outcome, cleared, settled_at, detail = found
-    data = json.loads(offset)
-    return OffsetIntent(cycle, sequence, tuple(data["registers"]), data["D_b"], intended_at, outcome, bool(cleared),
-                        settled_at, detail)
 
 
 def outcome_of(entry: CycleEntry) -> tuple[str, str | None, int, str | None]:
@@ -180,6 +182,17 @@ def outcome_of(entry: CycleEntry) -> tuple[str, str | None, int, str | None]:
     return "ok", None, 0, None
 
 
+def checked_duration(entry: CycleEntry) -> float | None:
+    """The entry's ``duration_s``: None, or a finite number of seconds >= 0 (else :class:`JournalEntryInvalid`)."""
+    d = entry.duration_s
+    if d is None:
+        return None
+    if isinstance(d, bool) or not isinstance(d, int | float) or not math.isfinite(d) or d < 0:
+        raise JournalEntryInvalid(f"cycle entry: duration_s {d!r} is not a duration (a finite number of seconds"
+                                  " >= 0); nothing written")
+    return float(d)
+
+
 def dumps(name: str, value: Any) -> str | None:
     """Strict JSON (no NaN, no numpy arrays): the journal is read back by other programs."""
     if value is None:
@@ -188,18 +201,6 @@ def dumps(name: str, value: Any) -> str | None:
         return json.dumps(value, allow_nan=False)
     except (TypeError, ValueError) as exc:
         raise JournalEntryInvalid(f"cycle entry: {name} is not plain JSON ({exc}); nothing written") from exc
-
-
-def loads(text: str | None) -> Any:
-    return None if text is None else json.loads(text)
-
-
-def row_from(found: Sequence[Any]) -> JournalRow:
-    (number, started_at, finished_at, job, part_tag, status, error_code, plc_code, error_message,
-     record, result, timings, poses, images, pruned_at) = found
-    return JournalRow(number, started_at, finished_at, job, part_tag, status, error_code, plc_code, error_message,
-                      loads(record), loads(result), json.loads(timings), json.loads(poses), json.loads(images),
-                      pruned_at)
 
 
 def file_size(path: Path) -> int:

@@ -4,8 +4,8 @@ settling of every offset whose acknowledgement monoguide did not see (docs/cycle
 The rule: the robot holds a valid offset only from a cycle the PLC was told RESULT_OK about.
 
 - Before the offset goes on the wire, the journal commits its **intent** (cycle number, the robot request's
-  sequence number, the six numbers). When that commit fails, nothing is sent (the cycle ends in ERROR with the
-  journal's code).
+  sequence number, the six numbers, and the cycle's job, part tag and start, for the row rebuilt from it). When
+  that commit fails, nothing is sent (the cycle ends in ERROR with the journal's code).
 - Acknowledged (status 0, exactly that sequence): the outcome ``acknowledged`` is committed with the cycle's
   row. Refused by the program (a negative status for that sequence): ``refused``, the program holds nothing
   from it.
@@ -54,17 +54,21 @@ class OffsetLedger:
 
     def recover(self) -> list[int]:
         """Give every unsettled intent whose cycle has no row (the service ended between sending the offset and
-        committing the cycle) its row, ERROR ``ROBOT_OFFSET_UNCONFIRMED``; return those cycle numbers."""
+        committing the cycle) its row, ERROR ``ROBOT_OFFSET_UNCONFIRMED``, with the job, part tag and start the
+        intent carries (an intent of a journal before schema version 3: none, and the intent's time as the start);
+        it finished, as far as the journal knows, when the intent was committed. Return those cycle numbers."""
         recovered = []
         for intent in self.unsettled:
             if self.journal.has_cycle(intent.cycle):
                 continue
+            part = "" if intent.job is None else f" (job {intent.job}, part tag {intent.part_tag})"
             error = RobotOffsetUnconfirmed(
-                f"cycle {intent.cycle}: the service ended after its offset (request {intent.sequence}) was committed "
-                f"to be sent and before the robot's answer was recorded; the robot may hold it: do not grasp "
-                f"(settled against the robot's report when it is reachable)")
-            self.journal.commit_cycle(CycleEntry(started_at=intent.intended_at, finished_at=intent.intended_at,
-                                                 error=error), intent.cycle)
+                f"cycle {intent.cycle}{part}: the service ended after its offset (request {intent.sequence}) was "
+                f"committed to be sent and before the robot's answer was recorded; the robot may hold it: do not "
+                f"grasp (settled against the robot's report when it is reachable)")
+            started_at = intent.intended_at if intent.started_at is None else intent.started_at
+            self.journal.commit_cycle(CycleEntry(started_at=started_at, finished_at=intent.intended_at,
+                                                 job=intent.job, part_tag=intent.part_tag, error=error), intent.cycle)
             log.warning("journal: %s", error.message)
             recovered.append(intent.cycle)
         return recovered
@@ -79,9 +83,13 @@ class OffsetLedger:
 
     # --- during a cycle -------------------------------------------------------------------------------
 
-    def intend(self, cycle: int, sequence: int, registers: tuple[float, ...], D_b: list[list[float]]) -> None:
-        """Commit the intent (raises, and then nothing may be sent, when the journal cannot)."""
-        self.journal.commit_intent(cycle, sequence, registers, D_b)
+    def intend(self, cycle: int, sequence: int, registers: tuple[float, ...], D_b: list[list[float]], *,
+               job: int | None = None, part_tag: int | None = None, started_at: float | None = None) -> None:
+        """Commit the intent (raises, and then nothing may be sent, when the journal cannot). ``job``,
+        ``part_tag`` (PLC registers 1 and 3), ``started_at`` (the cycle's Unix start): what the row rebuilt from
+        the intent after a kill -9 carries (:meth:`recover`)."""
+        self.journal.commit_intent(cycle, sequence, registers, D_b, job=job, part_tag=part_tag,
+                                   started_at=started_at)
 
     def after_failed_write(self, robot: Robot, cycle: int, sequence: int, error: MonoguideError) -> MonoguideError:
         """The write of cycle ``cycle``'s offset (request ``sequence``) failed with ``error`` after it was sent:

@@ -322,3 +322,57 @@ def test_list_by_job_pages_through_the_jobs_index_and_names_the_part(tmp_path: P
     assert rows[0].split()[0] == "1202" and rows[0].split()[4] == "roof"  # the time is a date and a time
     run = _run("journal", "list", "--state-dir", str(tmp_path), "--job", "1", "--last", "0", "--json")
     assert len(_json_lines(run.stdout)) == 802  # more than a page (500): paged by number
+
+
+def test_list_and_show_give_every_cycle_the_offset_it_sent(tmp_path: Path) -> None:
+    """A good cycle, one rebuilt at start (429, no result: the offset only in its intent), its twin settled later,
+    one settled held and one not held after a lost write, one refused by the robot program: `list` and `show`
+    (and their --json) give each the offset it computed and sent."""
+    from monoguide.daemon.service import OffsetLedger
+    from monoguide.drivers.errors import DeviceDisconnected, RobotCommandRejected
+
+    rng = np.random.default_rng(7)
+    offsets = {n: [float(v) for v in rng.uniform(-30, 30, 6)] for n in range(1, 7)}  # x y z mm, A B C deg
+    D_b = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
+    lost = DeviceDisconnected("robot: the controller closed the connection")
+    with Journal(tmp_path) as journal:
+        for n, offset in offsets.items():
+            journal.commit_intent(n, 100 + n, tuple(offset), D_b, job=1, part_tag=n, started_at=STARTED + n)
+            result = {"status": "ok", "rms_px": 0.05, "base_offset_xyzabc": [round(v, 6) for v in offset]}
+            entry = {"started_at": STARTED + n, "finished_at": STARTED + n + 5, "job": 1, "part_tag": n}
+            if n == 1:
+                journal.commit_cycle(CycleEntry(**entry, result=result), n, intent_outcome=("acknowledged", "ok"))
+            elif n in (4, 5):
+                journal.commit_cycle(CycleEntry(**entry, result=result, error=lost), n)
+                journal.settle_intent(n, "held" if n == 4 else "not_held", "settled", cleared=True)
+            elif n == 6:
+                journal.commit_cycle(CycleEntry(**entry, result=result, error=RobotCommandRejected("status -3")), n,
+                                     intent_outcome=("refused", "status -3"))
+        assert OffsetLedger(journal).recover() == [2, 3]  # the service was killed after their offsets went out
+        journal.settle_intent(3, "held", "settled at start", cleared=True)
+    listed = {c["number"]: c for c in _json_lines(_run("journal", "list", "--state-dir", str(tmp_path),
+                                                       "--json").stdout)}
+    table = _run("journal", "list", "--state-dir", str(tmp_path)).stdout.splitlines()[1:]
+    assert [c["error_code"] for c in listed.values()] == [None, "ROBOT_OFFSET_UNCONFIRMED", "ROBOT_OFFSET_UNCONFIRMED",
+                                                          "DEVICE_DISCONNECTED", "DEVICE_DISCONNECTED",
+                                                          "ROBOT_COMMAND_REJECTED"]
+    for n, offset in offsets.items():
+        (shown,) = _json_lines(_run("journal", "show", str(n), "--state-dir", str(tmp_path), "--json").stdout)
+        assert listed[n]["base_offset_xyzabc"] == pytest.approx(offset, abs=1e-6), n
+        assert shown["base_offset_xyzabc"] == listed[n]["base_offset_xyzabc"], n
+        text = f"{offset[0]:.3f} {offset[1]:.3f} {offset[2]:.3f}, {offset[3]:.4f} {offset[4]:.4f} {offset[5]:.4f}"
+        assert text in table[n - 1], (n, table[n - 1])
+        human = _run("journal", "show", str(n), "--state-dir", str(tmp_path)).stdout
+        assert f"base offset x y z mm, a b c deg: {text}\n" in human, (n, human)
+
+
+def test_show_of_a_check_job_prints_its_result_without_a_pose(tmp_path: Path) -> None:
+    """A check job's result holds the cameras' check, not a pose (nothing written to the robot)."""
+    check = {"summary": "every camera where it was calibrated", "passed": True}
+    with Journal(tmp_path) as journal:
+        journal.commit_cycle(CycleEntry(STARTED, STARTED + 6, 65535, 9, result={"status": "ok", "check": check,
+                                                                                "camera_deviation": []}))
+    run = _run("journal", "show", "1", "--state-dir", str(tmp_path))
+    assert run.exit_code == 0, run.output
+    assert "  result: rms - px, rotation - deg, grasp shift - mm, σ - deg - mm, method -\n" in run.stdout
+    assert "  base offset x y z mm, a b c deg: -\n" in run.stdout and "  T_s1_w: -\n" in run.stdout

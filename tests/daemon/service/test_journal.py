@@ -94,7 +94,7 @@ def test_round_trip_and_the_counter_survives_reopening(tmp_path: Path) -> None:
             journal.cycle(7)
     db = sqlite3.connect(tmp_path / "state" / "journal.sqlite3")
     assert db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
-    assert db.execute("PRAGMA user_version").fetchone()[0] == 2
+    assert db.execute("PRAGMA user_version").fetchone()[0] == 3
 
 
 def test_a_contradictory_or_non_json_entry_is_refused_and_nothing_written(tmp_path: Path) -> None:
@@ -169,7 +169,7 @@ def test_another_programs_database_and_an_unknown_version_are_refused(tmp_path: 
     db.execute("PRAGMA user_version = 7")
     db.close()
     with pytest.raises(JournalSchemaUnknown,
-                       match=r"schema version 7 \(written by a newer monoguide\?\).*versions 1, 2 only"):
+                       match=r"schema version 7 \(written by a newer monoguide\?\).*versions 1, 2, 3 only"):
         Journal(tmp_path / "newer")
 
 
@@ -282,24 +282,6 @@ def test_an_intent_is_committed_before_and_settled_with_its_cycle(tmp_path: Path
             journal.commit_intent(2, 43, (0.0,) * 6, D_b)
 
 
-def test_a_version_1_journal_is_upgraded_in_place_and_keeps_its_rows(tmp_path: Path) -> None:
-    db = sqlite3.connect(tmp_path / "journal.sqlite3")
-    from monoguide.daemon.service import _journal as journal_module
-
-    db.executescript(f"BEGIN; {journal_module._SCHEMA} PRAGMA application_id = {journal_module.APPLICATION_ID};"
-                     " PRAGMA user_version = 1; COMMIT;")
-    db.close()
-    with Journal(tmp_path) as journal:
-        journal.commit_cycle(expected_entry(1, _record()))
-    with Journal(tmp_path) as journal:
-        _assert_row_is(journal, 1)
-        journal.commit_intent(2, 7, (0.0,) * 6, [[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
-        assert [i.sequence for i in journal.unsettled_intents()] == [7]
-    db = sqlite3.connect(tmp_path / "journal.sqlite3")
-    assert db.execute("PRAGMA user_version").fetchone()[0] == 2
-    db.close()
-
-
 def test_a_recreated_journal_continues_the_numbering_it_is_given(tmp_path: Path) -> None:
     with Journal(tmp_path) as journal:
         assert journal.continue_numbering(37_856)
@@ -337,21 +319,21 @@ def test_a_journal_deleted_or_replaced_under_the_writer_refuses_every_commit(tmp
 
 def test_the_queries_a_long_journal_runs_between_and_after_cycles_never_scan_the_table(tmp_path: Path) -> None:
     """Their cost stays flat as the journal grows (benchmarks/bench_journal.py measures it)."""
-    from monoguide.daemon.service import _journal as journal_module
+    from monoguide.daemon.service import _journal_schema as schema
 
     with Journal(tmp_path) as journal:
         journal.commit_cycle(expected_entry(1, _record()))
     db = sqlite3.connect(tmp_path / "journal.sqlite3")
     plans = {
-        "prune": db.execute(f"EXPLAIN QUERY PLAN {journal_module.PRUNE_QUERY}").fetchall(),
-        "last cycles": db.execute(f"EXPLAIN QUERY PLAN {journal_module.LAST_CYCLES_QUERY}", (9, 20)).fetchall(),
-        "one cycle": db.execute(f"EXPLAIN QUERY PLAN SELECT {journal_module._COLUMNS} FROM cycle WHERE number = ?",
-                                (1,)).fetchall(),
+        "prune": db.execute(f"EXPLAIN QUERY PLAN {schema.PRUNE_QUERY}").fetchall(),
+        "last cycles": db.execute(f"EXPLAIN QUERY PLAN {schema.LAST_CYCLES_QUERY}", (9, 20)).fetchall(),
+        "one cycle": db.execute(f"EXPLAIN QUERY PLAN {schema.CYCLE_QUERY}", (1,)).fetchall(),
     }
     db.close()
     for name, plan in plans.items():
         details = " / ".join(row[3] for row in plan)
         assert "USING INDEX cycle_images_kept" in details or "USING INTEGER PRIMARY KEY" in details, (name, details)
+        assert "SCAN offset_intent" not in details, (name, details)  # a row's intent is found by its key too
 
 
 def test_pruning_touches_only_the_cycles_whose_images_are_kept(tmp_path: Path) -> None:

@@ -13,8 +13,10 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import errno
+import signal
 import sqlite3
 import subprocess
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -331,7 +333,8 @@ async def test_the_kill_9_window_is_settled_at_the_next_start(tmp_path: Path, ro
     state = tmp_path / "state"
     with Journal(state) as journal:
         journal.commit_cycle(_failed_entry())  # cycle 1
-        journal.commit_intent(2, 17, OFFSET, [[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
+        journal.commit_intent(2, 17, OFFSET, [[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]],
+                              job=1, part_tag=3107, started_at=1_790_000_000.0)
     robot = HeldByRobot(sequence=17 if robot_held else 16, valid=robot_held, reachable=False)
     async with plc_line(host) as line, _service(tmp_path, line, StandIn(), _devices(robot)):
         status = await line.wait(lambda s: Status.FAULT in s, "FAULT at start")
@@ -352,6 +355,10 @@ async def test_the_kill_9_window_is_settled_at_the_next_start(tmp_path: Path, ro
     (intent,) = _intents(state)
     assert (intent.cycle, intent.outcome, intent.cleared) == (2, "held" if robot_held else "not_held", True)
     assert not robot.valid
+    with Journal(state, read_only=True) as journal:  # the rebuilt row: the cycle's facts the intent carried
+        row = journal.cycle(2)
+    assert (row.job, row.part_tag, row.started_at, row.base_offset_xyzabc) == (1, 3107, 1_790_000_000.0,
+                                                                                pytest.approx(list(OFFSET)))
 
 
 # --- the journal deleted under the service ---------------------------------------------------------------------
@@ -458,3 +465,34 @@ def test_the_ledger_is_not_fooled_by_another_request(tmp_path: Path) -> None:
         with pytest.raises(DeviceNotFound):
             ledger.settle_pending(robot)  # type: ignore[arg-type]
         assert [i.cycle for i in ledger.unsettled] == [2]
+
+
+INTENDING = """
+import sys, time
+from monoguide.daemon.service import Journal, OffsetLedger
+journal = Journal(sys.argv[1])
+OffsetLedger(journal).intend(7, 23, (1.25, -2.5, 0.75, 0.1, -0.2, 0.3), [], job=4, part_tag=52_117,
+                             started_at=1_790_000_123.25)
+print("sent", flush=True)  # the offset went to the robot; the service dies before the cycle's row
+time.sleep(30)
+"""
+
+
+def test_the_row_rebuilt_after_a_kill_9_carries_the_cycles_job_part_tag_and_start(tmp_path: Path) -> None:
+    child = subprocess.Popen([sys.executable, "-c", INTENDING, str(tmp_path)], stdout=subprocess.PIPE, text=True)
+    assert child.stdout is not None and child.stdout.readline() == "sent\n"
+    child.send_signal(signal.SIGKILL)
+    assert child.wait(timeout=5) == -signal.SIGKILL
+    child.stdout.close()
+    from monoguide.daemon.service import OffsetLedger
+
+    with Journal(tmp_path) as journal:  # the next start
+        ledger = OffsetLedger(journal)
+        assert ledger.recover() == [7]
+        (intent,) = ledger.unsettled
+        row = journal.cycle(7)
+    assert (row.job, row.part_tag, row.started_at, row.finished_at) == (4, 52_117, 1_790_000_123.25,
+                                                                        intent.intended_at)
+    assert (row.error_code, row.plc_code) == (RobotOffsetUnconfirmed.code, RobotOffsetUnconfirmed.plc_code)
+    assert row.error_message is not None and row.error_message.startswith("cycle 7 (job 4, part tag 52117): ")
+    assert row.base_offset_xyzabc == list(OFFSET) and row.damaged == ()
