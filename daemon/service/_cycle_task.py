@@ -158,11 +158,11 @@ class CycleTask:
         self.runners, self.abort, self.keep_images = runners, abort, keep_images
         self.health, self.shown = health, shown
 
-    async def run(self, inputs: PlcInputs) -> Outcome:
+    async def run(self, inputs: PlcInputs, triggered_at: float | None = None) -> Outcome:
         """Never raises (but for cancellation): any failure ends in ``outcome.error`` with the stage it struck in —
         an exception no stage should raise (a bug) as :class:`CycleUnexpected` naming it, its traceback in the log;
-        success leaves the machine in REPORTING."""
-        outcome = Outcome(time.time())
+        success leaves the machine in REPORTING. ``triggered_at``: the trigger's ``time.monotonic()``."""
+        outcome = Outcome(time.time(), time.monotonic() if triggered_at is None else triggered_at)
         try:
             await self._stages(inputs, outcome)
         except MonoguideError as exc:
@@ -273,7 +273,8 @@ class CycleTask:
         number = self.journal.next_number()
 
         def before_send(sequence: int) -> None:
-            ledger.intend(number, sequence, tuple(float(v) for v in solution.offset), solution.D_b.tolist())
+            ledger.intend(number, sequence, tuple(float(v) for v in solution.offset), solution.D_b.tolist(),
+                          job=inputs.job, part_tag=inputs.part_tag, started_at=outcome.started_at)
             outcome.number, outcome.sequence = number, sequence
 
         try:

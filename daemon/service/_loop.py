@@ -347,7 +347,7 @@ class Service:
             if self.watch_task is not None:  # a question to the devices still under way: they answer one at a time
                 await self.watch_task
             await self.report.finish_housekeeping()  # the last cycle's journal work first: one user at a time
-            outcome = await self.task.run(inputs)
+            outcome = await self.task.run(inputs, triggered_at)
             await self.report.report(inputs, triggered_at, outcome, self.abort)
         except Exception as exc:  # a bug of the report: say so loudly, journal the cycle, latch FAULT
             log.exception("cycle: unexpected failure while reporting")

@@ -102,12 +102,16 @@ class OffsetLedger:
         assert intent is not None, "an intent is committed before the offset is sent"
         try:
             settled = self._settle(robot, intent)
-        except MonoguideError as settle_error:
+        except Exception as settle_error:  # whatever stopped the settling (a bug too): the robot may hold it
             self.unsettled.append(intent)
+            why = (f"{settle_error.code}: {settle_error.message}" if isinstance(settle_error, MonoguideError)
+                   else f"unexpected {type(settle_error).__name__}: {settle_error}")
+            if not isinstance(settle_error, MonoguideError):
+                log.exception("cycle %d: settling the offset failed unexpectedly", cycle)
             return RobotOffsetUnconfirmed(
                 f"cycle {cycle}: the offset (request {sequence}) was sent and then {error.code}: {error.message}; "
-                f"the robot cannot say now whether it took it ({settle_error.code}: {settle_error.message}): do not "
-                "grasp; FAULT until monoguide has settled it against the robot's report")
+                f"the robot cannot say now whether it took it ({why}): do not grasp; FAULT until monoguide has "
+                "settled it against the robot's report")
         return type(error)(f"{error.message}; {settled.detail}")
 
     def acknowledged(self, cycle: int, sequence: int) -> tuple[str, str]:

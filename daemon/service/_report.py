@@ -179,6 +179,7 @@ def journal_entry(outcome: Outcome, inputs: PlcInputs, state_dir: Path | None = 
         images = images or outcome.seen.image_paths()
     return CycleEntry(
         started_at=outcome.started_at, finished_at=time.time(), job=inputs.job, part_tag=inputs.part_tag,
+        duration_s=time.monotonic() - outcome.started_monotonic,  # a clock step does not change it
         record=getattr(m, "record", None),
         result=getattr(s, "result", None) if outcome.error is None else _failed_result(outcome, state_dir),
         error=outcome.error,

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import errno
 import signal
 import sqlite3
 import subprocess
@@ -23,11 +22,12 @@ from typing import Any
 
 import pytest
 from helpers.cell_configs import plc_cell_config
+from helpers.disks import fill, small_file_system
 from helpers.plc_line import WAIT_S, Line, in_own_event_loop, plc_line
 from helpers.service_stand_in import OFFSET, StandIn, service_on_line
 
 from monoguide.daemon.config import load_cell_config
-from monoguide.daemon.errors import JournalError, JournalReplaced
+from monoguide.daemon.errors import CycleUnexpected, JournalError, JournalReplaced
 from monoguide.daemon.service import CellDevices, DeviceSlot, Journal, run_service
 from monoguide.drivers.errors import (
     DeviceDisconnected,
@@ -192,34 +192,9 @@ async def test_every_written_offset_has_its_intent_and_outcome(tmp_path: Path) -
     assert all(i.settled_at >= i.intended_at for i in intents)
 
 
-@contextlib.contextmanager
-def _small_file_system(path: Path, size_kb: int = 2048) -> Any:
-    """A tmpfs of its own (the test needs to be root, as CI is): a disk that really fills."""
-    path.mkdir(parents=True)
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size_kb}k", "tmpfs", str(path)],
-                          capture_output=True, text=True, check=False)
-    assert done.returncode == 0, f"this test mounts a small tmpfs and needs root: {done.stderr}"
-    try:
-        yield path
-    finally:
-        subprocess.run(["umount", "-l", str(path)], check=False)
-
-
-def _fill(directory: Path) -> Path:
-    filler = directory / "filler"
-    with open(filler, "wb") as f:
-        try:
-            while True:
-                f.write(b"\0" * 65536)
-                f.flush()
-        except OSError as exc:
-            assert exc.errno == errno.ENOSPC
-    return filler
-
-
 @in_own_event_loop
 async def test_a_full_disk_means_nothing_is_sent_and_the_plc_is_told(tmp_path: Path) -> None:
-    with _small_file_system(tmp_path / "disk") as disk:
+    with small_file_system(tmp_path / "disk") as disk:
         robot = HeldByRobot()
         stand_in = FailingWrite(robot=robot)
         stand_in.release.set()
@@ -227,7 +202,7 @@ async def test_a_full_disk_means_nothing_is_sent_and_the_plc_is_told(tmp_path: P
             await _trigger(line, 1)
             await line.wait(lambda s: Status.DONE in s, "DONE")
             await line.acknowledge()  # cycle 1, before the disk fills: good
-            filler = _fill(disk)
+            filler = fill(disk)
             for tag in (2, 3):  # FAULT_RESET, the next part: nothing reaches the robot, every time
                 await _trigger(line, tag)
                 status = await line.wait(lambda s: Status.FAULT in s, "FAULT")
@@ -272,6 +247,39 @@ async def test_a_failed_write_to_a_robot_that_answers_is_settled_at_once(tmp_pat
     with Journal(tmp_path / "state") as journal:
         row = journal.cycle(1)
     assert row.error_code == type(error).code and "settled" in row.error_message
+
+
+@pytest.mark.parametrize(("reachable", "host"), [(True, "127.0.46.30"), (False, "127.0.46.31")],
+                         ids=["robot-answers", "robot-cannot-say"])
+@in_own_event_loop
+async def test_an_unexpected_exception_after_the_send_is_settled_as_any_failed_write(tmp_path: Path, reachable: bool,
+                                                                                     host: str) -> None:
+    """A bug raising in the write after the offset went out: the robot may hold it, so it is settled as after a lost
+    connection — ERROR CYCLE_UNEXPECTED once the robot says (and cleared it), FAULT 429 while it cannot."""
+    robot = HeldByRobot(sequence=0, reachable=reachable)
+    stand_in = FailingWrite(error=KeyError("a bug after the send"), robot=robot, robot_takes=True)
+    stand_in.release.set()
+    async with service_on_line(tmp_path, host, stand_in, devices=_devices(robot)) as (line, _service, _stop):
+        await _trigger(line, 8)
+        status = await line.wait(lambda s: bool(s & (Status.DONE | Status.FAULT)), "DONE or FAULT")
+        out = (await line.outputs()).result
+        if reachable:
+            assert status == Status.DONE | Status.ERROR
+            assert (out.error_code, out.offset) == (CycleUnexpected.plc_code, ZERO)
+            await line.acknowledge()
+        else:
+            assert Status.FAULT in status and out.error_code == RobotOffsetUnconfirmed.plc_code
+    (intent,) = _intents(tmp_path / "state")
+    with Journal(tmp_path / "state") as journal:
+        row = journal.cycle(1)
+    if reachable:
+        assert (robot.sequence, robot.valid) == (0, False)
+        assert (intent.outcome, intent.cleared) == ("held", True)
+        assert row.error_code == "CYCLE_UNEXPECTED" and "settled" in (row.error_message or "")
+        assert row.result is not None and row.result["failure"]["exception"] == "KeyError"
+    else:
+        assert (robot.sequence, robot.valid) == (1, True) and intent.outcome is None  # still to settle
+        assert row.error_code == "ROBOT_OFFSET_UNCONFIRMED"
 
 
 @in_own_event_loop
