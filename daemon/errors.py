@@ -39,6 +39,14 @@ class ConfigMissingKey(ConfigError):
     plc_code = 532
 
 
+class ConfigFileRefused(ConfigError):
+    """A file given as a config is not a regular file (a named pipe, a device, a directory, ...) or is larger than
+    the limit (4 MiB): refused unread; the message names the path and what it is."""
+
+    code = "CONFIG_FILE_REFUSED"
+    plc_code = 533
+
+
 class CycleError(MonoguideError):
     """The measuring cycle failed in a way that is not a device's or the solver's fault."""
 

@@ -29,7 +29,6 @@ import dataclasses
 import json
 import random
 import socket
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -37,7 +36,7 @@ from typing import Any
 import tomlkit
 import tomlkit.exceptions
 
-from monoguide.daemon.config import load_cell_config
+from monoguide.daemon.config import load_cell_config, read_config_toml
 from monoguide.daemon.plan import cell_layout
 from monoguide.drivers.atomic_file import write_atomic
 from monoguide.drivers.errors import ConfigError
@@ -204,12 +203,7 @@ def _jobs(config: Any, asked: tuple[int, ...]) -> tuple[int, ...]:
 
 
 def _read_toml(path: Path, option: str) -> dict[str, Any]:
-    try:
-        return tomllib.loads(Path(path).read_text())
-    except OSError as exc:
-        raise ConfigError(f"{option} {path}: cannot read it: {exc.strerror or exc}") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{option} {path}: not valid TOML: {exc}") from exc
+    return read_config_toml(path, "cell config", label=f"{option} {path}")  # a regular file of at most 4 MiB
 
 
 def pick_free_host(ports: tuple[int, ...], net: str = AUTO_HOST_NET) -> str:
