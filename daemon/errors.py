@@ -128,7 +128,7 @@ class JournalReplaced(JournalError):
 
 
 class StateDirMissing(MonoguideError):
-    """The state directory does not exist or is not a directory (wrong --state-dir, or the service never ran)."""
+    """The state directory does not exist (wrong --state-dir, or the service never ran)."""
 
     code = "STATE_DIR_MISSING"
     plc_code = 640
@@ -163,7 +163,9 @@ class StateDirInUse(MonoguideError):
 
 
 class StateDirInvalid(MonoguideError):
-    """``--state-dir`` was given but empty (or blank): refused rather than taken for the current directory."""
+    """The state directory cannot be one: ``--state-dir`` empty (never taken for the current directory), a file or
+    anything else that is not a directory there (or where one of its parents should be), or it cannot be created;
+    the message names it and where it came from (``--state-dir``, ``$STATE_DIRECTORY``)."""
 
     code = "STATE_DIR_INVALID"
     plc_code = 645
