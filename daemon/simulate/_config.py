@@ -11,7 +11,10 @@ line's ``monoguide run`` reads ``/etc/monoguide/cell.toml``.
 
 With ``--calibration CELL.toml`` the service reads a second file, ``service.toml``: the same, with the
 calibration values of ``CELL.toml`` (``[camera.intrinsics]``, ``[camera] T_f_c``, ``[reference] T_cf_b`` and
-``T_cf_w0``, each ``[[measuring_poses]]`` ``T_cf_si`` by name) and ``[sim] truth_config`` naming ``cell.toml``:
+``T_cf_w0``, each part type's ``T_cf_w0``, each ``[[measuring_poses]]`` ``T_cf_si`` and ``[[reference_marks]]``
+``position_cf`` by name), its ``[calibration]`` provenance (so that a part type the wizard has not calibrated is
+refused, ``PART_NOT_CALIBRATED``, before anything moves, as ``run`` on that file does) and ``[sim] truth_config``
+naming ``cell.toml``:
 the service believes the calibration, the simulated devices (the camera in the service's process too) keep
 the truth of ``--config``.
 
@@ -141,7 +144,9 @@ def with_calibration(truth: dict[str, Any], calibrated: dict[str, Any], path: Pa
                                                                                               list[str]]:
     """``truth`` (a cell config's TOML data) with the calibration values of ``calibrated``: the data, and the
     keys taken (``camera.intrinsics``, ``camera.T_f_c``, ``reference.T_cf_b``, ``reference.T_cf_w0``,
-    ``measuring_poses.<name>.T_cf_si``). A value ``calibrated`` lacks stays the truth's."""
+    ``parts.<job>.T_cf_w0``, ``measuring_poses.<name>.T_cf_si``, ``reference_marks.<name>.position_cf``) and its
+    ``[calibration]`` provenance (``calibration``; none when ``calibrated`` has none). A value ``calibrated`` lacks
+    stays the truth's."""
     data = json.loads(json.dumps(truth))  # a deep copy (TOML data is JSON data)
     taken = []
     camera = calibrated.get("camera", {})
@@ -168,9 +173,20 @@ def with_calibration(truth: dict[str, Any], calibrated: dict[str, Any], path: Pa
                               f"({', '.join(str(n) for n in poses)})")
         poses[name]["T_cf_si"] = pose["T_cf_si"]
         taken.append(f"measuring_poses.{name}.T_cf_si")
+    marks = {m.get("name"): m for m in data.get("reference_marks", [])}
+    for mark in calibrated.get("reference_marks", []):
+        if "position_cf" in mark and mark.get("name") in marks:  # surveyed by the wizard's marks step
+            marks[mark["name"]]["position_cf"] = mark["position_cf"]
+            taken.append(f"reference_marks.{mark['name']}.position_cf")
     if not taken:
         raise ConfigError(f"--calibration {path}: no calibration values in it ([camera.intrinsics], [camera] T_f_c, "
                           f"[reference] T_cf_b / T_cf_w0, [[measuring_poses]] T_cf_si)")
+    # the wizard's provenance says which part types it calibrated: the service refuses the others before anything
+    # moves (PART_NOT_CALIBRATED), as `monoguide run` on that file does; a file without one was entered by hand
+    data.pop("calibration", None)
+    if isinstance(calibrated.get("calibration"), dict):
+        data["calibration"] = calibrated["calibration"]
+        taken.append("calibration")
     return data, taken
 
 
