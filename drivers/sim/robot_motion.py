@@ -15,8 +15,9 @@ The truth comes from the robot spec file that :meth:`SimCell.write_robot_spec` w
 changes: a new part); what the robot did goes to a truth file (:func:`read_truth`) that the in-process
 simulated camera follows (:meth:`SimCell.set_actual_flange_pose`) and tests score against: its stops (true:
 ``T_b_f``, ``stops``; as reported: ``T_b_f_reported``, ``stops_reported``, which see only the share
-``reported_repeatability_fraction`` of each stop's deviation), the offsets it took, its grasps, and at every
-moment what it holds (``held_sequence``, ``offset_valid``).
+``reported_repeatability_fraction`` of each stop's deviation), the offsets it took, its grasps, at every
+moment what it holds (``held_sequence``, ``offset_valid``) and, with a part supply, the part in the cell
+(``T_cf_w``, ``part_type``, ``reference_part``: :attr:`PartSupply.reference_state`).
 
 Faults (:data:`FAULT_MODES` and :data:`FAULT_ACTIONS`, at start ``--fault`` or at run time one per line on
 standard input; ``none`` clears a mode and every one-shot still armed): modes, from the next request on:
