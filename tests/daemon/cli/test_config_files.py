@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from helpers.error_lines import the_error_line
 
 from monoguide.daemon.config import MAX_CONFIG_BYTES, load_cell_config, read_config_text
 from monoguide.daemon.errors import ConfigFileRefused
@@ -34,7 +35,7 @@ COMMANDS = {
     "plan": ["plan", "--config", "{file}"],
     "probe": ["probe", "robot", "--config", "{file}"],
     "health": ["health", "--config", "{file}", "--state-dir", "{state}"],
-    "web": ["web", "--config", "{file}", "--state-dir", "{state}", "--bind", "127.0.38.1:8080"],
+    "web": ["web", "--config", "{file}", "--state-dir", "{state}", "--bind", "127.0.57.30:8080"],
     "plant --config": ["plant", "--config", "{file}", "--state-dir", "{state}"],
     "plant --plant-config": ["plant", "--config", str(SIM_CELL), "--plant-config", "{file}", "--state-dir",
                              "{state}"],
@@ -53,14 +54,14 @@ def fifo(tmp_path: Path) -> Path:
 def test_every_command_refuses_a_named_pipe_as_its_config_at_once(command: str, fifo: Path, tmp_path: Path) -> None:
     done = _monoguide(COMMANDS[command], fifo, tmp_path)
     assert done.returncode == 2, done.stderr[-2000:]
-    line = _refusal(done.stderr)
+    line = the_error_line(done.stderr, "CONFIG_FILE_REFUSED ")
     assert f"{fifo}: a named pipe (FIFO), not a regular file" in line and "at most 4 MiB" in line, line
 
 
 def test_run_refuses_dev_zero_without_reading_it(tmp_path: Path) -> None:
     done = _monoguide(COMMANDS["run"], Path("/dev/zero"), tmp_path)
     assert done.returncode == 2, done.stderr[-2000:]
-    assert "/dev/zero: a character device, not a regular file" in _refusal(done.stderr)
+    assert "/dev/zero: a character device, not a regular file" in the_error_line(done.stderr, "CONFIG_FILE_REFUSED ")
 
 
 def test_a_directory_or_a_file_over_the_limit_is_refused_and_a_link_to_the_file_is_read(tmp_path: Path) -> None:
@@ -99,12 +100,3 @@ def _monoguide(argv: list[str], file: Path, tmp_path: Path) -> subprocess.Comple
 
 def _limit_memory() -> None:
     resource.setrlimit(resource.RLIMIT_AS, (MEMORY_LIMIT, MEMORY_LIMIT))
-
-
-def _refusal(stderr: str) -> str:
-    """The one line that refuses (``run`` and ``plant`` log it: a time stamp and the logger before the code)."""
-    lines = [line for line in stderr.splitlines() if line.strip()]
-    assert len(lines) == 1, stderr[-2000:]
-    code = lines[0].find("CONFIG_FILE_REFUSED ")
-    assert code == 0 or lines[0][:code].endswith(": "), lines[0]
-    return lines[0][code:]

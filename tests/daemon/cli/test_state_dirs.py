@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from helpers.error_lines import the_error_line
 
 SIM_CELL = Path(__file__).parents[3] / "config" / "sim-cell.toml"
 
@@ -22,7 +23,7 @@ COMMANDS = {
     "journal resolve": ["journal", "resolve", "1"],
     "journal export": ["journal", "export"],
     "health": ["health"],
-    "web": ["web", "--config", str(SIM_CELL), "--bind", "127.0.38.3:8080"],
+    "web": ["web", "--config", str(SIM_CELL), "--bind", "127.0.57.31:8080"],
     "plant": ["plant", "--config", str(SIM_CELL)],
 }
 
@@ -33,9 +34,9 @@ def test_every_command_refuses_a_regular_file_as_its_state_dir(command: str, tmp
     file.write_text("not a directory\n")
     done = _monoguide([*COMMANDS[command], "--state-dir", str(file)], tmp_path)
     assert done.returncode == 2, done.stderr[-2000:]
-    assert _refusal(done.stderr) == (f"STATE_DIR_INVALID state directory {file} (--state-dir) is a regular file, not a "
-                                     "directory: give --state-dir a directory (one that does not exist yet is created "
-                                     "by the service)")
+    assert _said(done) == (f"STATE_DIR_INVALID state directory {file} (--state-dir) is a regular file, not a "
+                           "directory: give --state-dir a directory (one that does not exist yet is created by the "
+                           "service)")
     assert file.read_text() == "not a directory\n" and sorted(p.name for p in tmp_path.iterdir()) == ["state"]
 
 
@@ -45,8 +46,8 @@ def test_a_state_dir_below_a_file_is_refused_naming_the_file(command: str, tmp_p
     file.write_text("")
     done = _monoguide([*COMMANDS[command], "--state-dir", str(file / "state")], tmp_path)
     assert done.returncode == 2, done.stderr[-2000:]
-    assert _refusal(done.stderr).startswith(f"STATE_DIR_INVALID state directory {file / 'state'} (--state-dir) is "
-                                            f"below {file}, a regular file: give --state-dir a directory")
+    assert _said(done).startswith(f"STATE_DIR_INVALID state directory {file / 'state'} (--state-dir) is below "
+                                  f"{file}, a regular file: give --state-dir a directory")
 
 
 def test_a_named_pipe_from_systemd_is_refused_naming_where_it_came_from(tmp_path: Path) -> None:
@@ -54,16 +55,15 @@ def test_a_named_pipe_from_systemd_is_refused_naming_where_it_came_from(tmp_path
     os.mkfifo(fifo)
     done = _monoguide(["status"], tmp_path, environ={"STATE_DIRECTORY": str(fifo)})
     assert done.returncode == 2, done.stderr[-2000:]
-    assert _refusal(done.stderr).startswith(f"STATE_DIR_INVALID state directory {fifo} ($STATE_DIRECTORY) is a named "
-                                            "pipe (FIFO), not a directory")
+    assert _said(done).startswith(f"STATE_DIR_INVALID state directory {fifo} ($STATE_DIRECTORY) is a named pipe "
+                                  "(FIFO), not a directory")
 
 
-def test_a_state_dir_that_does_not_exist_is_still_missing_for_a_reader_and_created_by_the_service(
-        tmp_path: Path) -> None:
+def test_a_state_dir_that_does_not_exist_is_still_missing_for_a_reader(tmp_path: Path) -> None:
     done = _monoguide(["status", "--state-dir", str(tmp_path / "absent")], tmp_path)
-    assert done.returncode == 1 and _refusal(done.stderr).startswith(f"STATE_DIR_MISSING state directory "
-                                                                     f"{tmp_path / 'absent'} (--state-dir) does not "
-                                                                     "exist")
+    assert done.returncode == 1
+    assert _said(done).startswith(f"STATE_DIR_MISSING state directory {tmp_path / 'absent'} (--state-dir) does not "
+                                  "exist")
 
 
 # --- helpers -----------------------------------------------------------------------------------------------
@@ -76,10 +76,5 @@ def _monoguide(argv: list[str], cwd: Path, environ: dict[str, str] | None = None
                           timeout=60, stdin=subprocess.DEVNULL, cwd=cwd, env=env)
 
 
-def _refusal(stderr: str) -> str:
-    """The one line that refuses (``run`` and ``plant`` log it: a time stamp and the logger before the code)."""
-    lines = [line for line in stderr.splitlines() if line.strip()]
-    assert len(lines) == 1, stderr[-2000:]
-    code = lines[0].find("STATE_DIR_")
-    assert code == 0 or lines[0][:code].endswith(": "), lines[0]
-    return lines[0][code:]
+def _said(done: subprocess.CompletedProcess[str]) -> str:
+    return the_error_line(done.stderr, "STATE_DIR_")
