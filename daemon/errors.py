@@ -39,6 +39,14 @@ class ConfigMissingKey(ConfigError):
     plc_code = 532
 
 
+class ConfigFileRefused(ConfigError):
+    """A file given as a config is not a regular file (a named pipe, a device, a directory, ...) or is larger than
+    the limit (4 MiB): refused unread; the message names the path and what it is."""
+
+    code = "CONFIG_FILE_REFUSED"
+    plc_code = 533
+
+
 class CycleError(MonoguideError):
     """The measuring cycle failed in a way that is not a device's or the solver's fault."""
 
@@ -129,7 +137,7 @@ class JournalReplaced(JournalError):
 
 
 class StateDirMissing(MonoguideError):
-    """The state directory does not exist or is not a directory (wrong --state-dir, or the service never ran)."""
+    """The state directory does not exist (wrong --state-dir, or the service never ran)."""
 
     code = "STATE_DIR_MISSING"
     plc_code = 640
@@ -164,7 +172,9 @@ class StateDirInUse(MonoguideError):
 
 
 class StateDirInvalid(MonoguideError):
-    """``--state-dir`` was given but empty (or blank): refused rather than taken for the current directory."""
+    """The state directory cannot be one: ``--state-dir`` empty (never taken for the current directory), a file or
+    anything else that is not a directory there (or where one of its parents should be), or it cannot be created;
+    the message names it and where it came from (``--state-dir``, ``$STATE_DIRECTORY``)."""
 
     code = "STATE_DIR_INVALID"
     plc_code = 645

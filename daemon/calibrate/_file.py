@@ -35,7 +35,13 @@ import tomlkit.exceptions
 from tomlkit.items import InlineTable, Item, Table
 
 from monoguide.daemon.calibrate._summary import step_summary
-from monoguide.daemon.config import CALIBRATION_STEPS, INTRINSICS_KEYS, CellConfig, load_cell_config
+from monoguide.daemon.config import (
+    CALIBRATION_STEPS,
+    INTRINSICS_KEYS,
+    CellConfig,
+    load_cell_config,
+    read_config_bytes,
+)
 from monoguide.daemon.errors import (
     CalibrationFileError,
     CalibrationFileRefused,
@@ -94,8 +100,8 @@ def write_calibration(config_path: Path, steps: dict[str, dict[str, Any]], prove
     ``T_cf_si``, not the camera's mounting, which is the cell's) and its provenance goes into
     ``[calibration.parts.<job>]``, the rest of ``[calibration]`` kept."""
     config_path = Path(config_path)
+    original = read_config_bytes(config_path, "cell config")  # a regular file of at most 4 MiB, else ConfigError
     try:
-        original = config_path.read_bytes()
         mode = stat.S_IMODE(config_path.stat().st_mode)
     except OSError as exc:
         raise CalibrationFileError(f"{config_path}: cannot read the cell config: {exc}") from exc

@@ -17,16 +17,16 @@ from __future__ import annotations
 
 import json
 import os
-import tomllib
 from dataclasses import dataclass, fields
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 from monoguide.daemon.calibrate._rig import MARKS_STEP, REQUIRES, STEPS, CalibrationOptions, no_marks_message
-from monoguide.daemon.config import CELL_STEPS, PART_STEPS
+from monoguide.daemon.config import CELL_STEPS, PART_STEPS, read_config_toml
 from monoguide.daemon.errors import CalibrationSessionInvalid
 from monoguide.drivers.atomic_file import write_atomic
+from monoguide.drivers.errors import ConfigError
 from monoguide.solver.errors import MonoguideError
 
 SESSION_FILE = "calibration-session.json"
@@ -233,8 +233,8 @@ def skipped_steps(config: Path) -> dict[str, str]:
     """The steps the cell of ``config`` does not do, with why: ``marks`` without ``[[reference_marks]]``. A config
     that cannot be read skips nothing here (loading it says why)."""
     try:
-        raw = tomllib.loads(Path(config).read_text())
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        raw = read_config_toml(config)
+    except ConfigError:
         return {}
     return {} if raw.get("reference_marks") else {MARKS_STEP: no_marks_message(str(config))}
 

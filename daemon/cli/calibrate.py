@@ -52,7 +52,7 @@ from monoguide.daemon.calibrate import (
 )
 from monoguide.daemon.cli._console import say, stderr_console
 from monoguide.daemon.cli._policy import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, exit_status, fail, report
-from monoguide.daemon.config import CELL_STEPS, CellConfig, load_cell_config
+from monoguide.daemon.config import CELL_STEPS, CellConfig, load_cell_config, read_config_text
 from monoguide.daemon.errors import CalibrationAborted, CalibrationSessionInvalid, CalibrationStepNotReady
 from monoguide.daemon.packaged import is_packaged, sim_cell_config
 from monoguide.drivers.errors import ConfigError
@@ -252,10 +252,10 @@ def _read_values(path: Path | None) -> dict[str, Any]:
     """``--values FILE``: option values (TOML or JSON, keys as the options' names, ``-`` or ``_``)."""
     if path is None:
         return {}
+    text = read_config_text(path, "file of option values", label=f"--values {path}")  # regular, at most 4 MiB
     try:
-        text = Path(path).read_text()
         data = json.loads(text) if Path(path).suffix.lower() == ".json" else tomllib.loads(text)
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
+    except (json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
         raise ConfigError(f"--values {path}: cannot read it: {exc}") from exc
     if not isinstance(data, dict):
         raise ConfigError(f"--values {path}: expected a table of option values")

@@ -1,7 +1,8 @@
 """``monoguide run``: the service — the PLC handshake driving the measuring cycle (docs/service.md).
 
 Exit status: 0 after SIGTERM/SIGINT/SIGHUP or ``--cycles N`` reached, 2 on a config or usage error (the
-message names the key and the reason), 1 on any other failure that stops the service — among them
+message names the key and the reason; a ``--state-dir`` that is not a directory, ``STATE_DIR_INVALID``), 1 on any
+other failure that stops the service — among them
 ``STATE_DIR_IN_USE`` when another service holds the state directory.
 
 ``--clear-status`` writes a status word of 0 to the PLC and ends (the unit's ``ExecStopPost=``): after a
@@ -23,7 +24,7 @@ import typer
 from monoguide.daemon.cli._policy import EXIT_FAILED, error_line, exit_status
 from monoguide.daemon.config import load_cell_config, require_sections
 from monoguide.daemon.errors import StateDirInvalid
-from monoguide.daemon.service import STATE_DIR_HELP, ServiceLock, state_dir
+from monoguide.daemon.service import STATE_DIR_HELP, ServiceLock, create_state_dir, state_dir
 from monoguide.drivers.errors import ConfigError
 from monoguide.solver.errors import MonoguideError
 
@@ -55,12 +56,12 @@ def run(
         directory = state_dir(state_dir_option)
         cfg = load_cell_config(config)
         require_sections(cfg, ("plc", "robot"), command="run")
+        create_state_dir(directory)  # STATE_DIR_INVALID (exit 2) when it cannot be
     except (ConfigError, StateDirInvalid) as error:
         log.error("%s", error_line(error))
         raise typer.Exit(exit_status(error)) from None
     lock = ServiceLock(directory)
     try:
-        directory.mkdir(parents=True, exist_ok=True)
         lock.acquire()  # held for the process's life: one service per state directory
         asyncio.run(_clear_status(cfg) if clear_status else _serve(cfg, directory, cycles))
     except MonoguideError as error:  # the service's own line is a log line (journald), in the one format

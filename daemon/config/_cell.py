@@ -25,7 +25,6 @@ file has no such section).
 from __future__ import annotations
 
 import os
-import tomllib
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 from functools import cached_property
@@ -45,6 +44,7 @@ from monoguide.daemon.config._calibration import (
 )
 from monoguide.daemon.config._camera import CameraConfig, read_camera
 from monoguide.daemon.config._devices import PlcConfig, RobotConfig, TrackerConfig, read_plc, read_robot, read_tracker
+from monoguide.daemon.config._file import read_config_toml
 from monoguide.daemon.config._layout import LayoutConfig, read_layout
 from monoguide.daemon.config._marks import MARKS_KEY, ReferenceMarkConfig, read_reference_marks, resolve_pose_marks
 from monoguide.daemon.config._part import (
@@ -158,15 +158,7 @@ class CellConfig:
 def load_cell_config(path: str | os.PathLike[str]) -> CellConfig:
     """Read and validate a cell file; raises :class:`ConfigError` naming the key, the value and why."""
     path = Path(path)
-    try:
-        raw = tomllib.loads(path.read_text())
-    except FileNotFoundError as exc:
-        raise ConfigError(f"{path}: no such config file") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: cannot read: {exc}") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML: {exc}") from exc
-    root = ConfigTable(raw, path)
+    root = ConfigTable(read_config_toml(path), path)  # a regular file of at most 4 MiB, else refused unread
     # a misspelt section: not "missing"
     root.reject_unknown((*REQUIRED_SECTIONS, *PARTS_SECTIONS, *OPTIONAL_SECTIONS, MARKS_KEY))
     name = _cell_name(root.table("cell"))

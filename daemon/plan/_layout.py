@@ -16,7 +16,7 @@ import numpy as np
 import tomlkit
 import tomlkit.exceptions
 
-from monoguide.daemon.config import CellConfig, LayoutConfig, load_cell_config
+from monoguide.daemon.config import CellConfig, LayoutConfig, load_cell_config, read_config_text
 from monoguide.drivers.atomic_file import write_atomic
 from monoguide.drivers.errors import ConfigError
 from monoguide.drivers.toml_format import commented, inline_table, matrix, replace_section
@@ -86,8 +86,8 @@ def write_config_with_layout(config: CellConfig, plan: LayoutAssessment, out: Pa
     (everything else, comments included, as it was: the file is edited as a tomlkit document); read back and
     checked before it replaces ``out``."""
     try:
-        doc = tomlkit.parse(Path(config.path).read_text())
-    except (OSError, tomlkit.exceptions.TOMLKitError) as exc:
+        doc = tomlkit.parse(read_config_text(config.path))
+    except tomlkit.exceptions.TOMLKitError as exc:
         raise ConfigError(f"{config.path}: cannot read it to write the planned poses: {exc}") from exc
     names = planned_pose_names(config, len(plan.T_w0_si))
     with_flange = any(p.T_b_f is not None for p in config.measuring_poses)

@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import difflib
 import ipaddress
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from monoguide.daemon.config import read_config_toml
 from monoguide.daemon.errors import ConfigMissingKey, ConfigUnknownKey
 from monoguide.daemon.plant._passwords import hash_problem
 from monoguide.drivers.errors import ConfigError
@@ -61,14 +61,7 @@ def load_plant_settings(path: Path | None) -> PlantSettings:
     :class:`ConfigError` naming the key, the value and why."""
     if path is None:
         return PlantSettings()
-    try:
-        raw = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError as exc:
-        raise ConfigError(f"{path}: no such plant file") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: cannot read: {exc}") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML: {exc}") from exc
+    raw = read_config_toml(path, "plant file")  # a regular file of at most 4 MiB, else refused unread
     _reject_unknown(f"{path}", raw, ("plant",))
     if "plant" not in raw:
         raise ConfigMissingKey(f"{path}: [plant]: missing (the plant file holds one [plant] table)")

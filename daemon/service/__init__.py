@@ -15,6 +15,7 @@ from monoguide.daemon.service._state_dir import (
     DEFAULT_STATE_DIR,
     STATE_DIR_HELP,
     ServiceLock,
+    create_state_dir,
     existing_state_dir,
     state_dir,
 )
@@ -30,8 +31,8 @@ from monoguide.daemon.service._status import (
 __all__ = [
     "DEFAULT_STATE_DIR", "JOURNAL_FILE", "MAX_PAGE", "STATE_DIR_HELP", "STATUS_FILE", "CellDevices", "CycleEntry",
     "CycleQuery", "DeviceSlot", "DeviceStatus", "Journal", "JournalRow", "Notifier", "OffsetIntent", "OffsetLedger",
-    "ServiceLock", "ServiceStatus", "existing_state_dir", "liveness", "read_status", "run_service", "state_dir",
-    "watchdog_interval_s", "write_status",
+    "ServiceLock", "ServiceStatus", "create_state_dir", "existing_state_dir", "liveness", "read_status", "run_service",
+    "state_dir", "watchdog_interval_s", "write_status",
 ]
 
 

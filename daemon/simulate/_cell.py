@@ -7,16 +7,18 @@ pseudo-terminal; when ``[robot] backend`` is ``sim-ur`` or ``sim-kuka``, the sim
 seeded part at every request of measuring pose 1, one line per part in ``truth_log``); and, with a ``[plc]``
 section and ``plc``, the simulated line PLC on ``[plc] host:port`` (``parts``: it plays that many, then only
 beats its heartbeat). Then it writes where each device listens into the state file, which ``monoguide probe``
-(and ``run``) read. The cell is a context manager: on the way out, however it ends, the devices are stopped,
-then the state file and the files beside it are deleted and the claim released.
+(and ``run``) read, and the named pipe beside it (``commands``) that takes sim-cell's commands from another
+process (``monoguide check`` asks for the reference part there; :mod:`._requests`). The cell is a context
+manager: on the way out, however it ends, the devices are stopped, then the state file and the files beside it
+are deleted and the claim released.
 
-:meth:`SimulatedCell.serve` echoes the PLC's per-part records (``plc: {...}``), takes the fault commands of
-standard input (:mod:`._fault_channel`) and relays the grasp: with a simulated robot, the simulated PLC gives
-the grasp go once it has read DONE + RESULT_OK and acknowledged the result (it prints ``GRASP {...}``); the cell
-forwards it to the robot controller (``grasp`` on its standard input), whose program runs the grasp only while
-its offset is valid and refuses it otherwise (``docs/robot-interface.md``, the grasp interlock); the controller
-prints the outcome, ``GRASP {...}``, which the cell passes back to the PLC (``grasped {...}``: the line waits
-for it before the next part) and echoes as ``grasp: {...}``.
+:meth:`SimulatedCell.serve` echoes the PLC's per-part records (``plc: {...}``), takes the fault commands of standard
+input and of the command pipe (:mod:`._fault_channel`) and relays the grasp: with a simulated robot, the simulated
+PLC gives the grasp go once it has read DONE + RESULT_OK and acknowledged the result (it prints ``GRASP {...}``);
+the cell forwards it to the robot controller (``grasp`` on its standard input), whose program runs the grasp only
+while its offset is valid and refuses it otherwise (``docs/robot-interface.md``, the grasp interlock); the
+controller prints the outcome, ``GRASP {...}``, which the cell passes back to the PLC (``grasped {...}``: the line
+waits for it before the next part) and echoes as ``grasp: {...}``.
 """
 
 from __future__ import annotations
@@ -52,10 +54,12 @@ class SimulatedCell(Owner):
     """The simulated cell's running devices and its state file; see the module's doc."""
 
     def __init__(self, cfg: CellConfig, state_path: Path, state: dict[str, Any], devices: Devices,
-                 tracker: Device, robot: Device | None, plc: Device | None, resources: contextlib.ExitStack) -> None:
+                 tracker: Device, robot: Device | None, plc: Device | None, resources: contextlib.ExitStack,
+                 commands: int) -> None:
         self.state_path, self.state = state_path, state
         self.tracker, self.robot, self.plc = tracker, robot, plc
         self._devices, self._resources = devices, resources
+        self._commands = commands  # the read end of the command pipe (closed with the resources)
         # the daemon's simulated camera reads the state file only in a cell whose robot is simulated too
         # (daemon/assembly.py build_camera)
         self._camera_follows = cfg.camera.backend == "sim" and cfg.robot is not None and cfg.robot.simulated
@@ -87,9 +91,10 @@ class SimulatedCell(Owner):
         plc_lines = _Lines.of(self.plc)
         robot_lines = _Lines.of(self.robot)
         commands = _Lines(0) if _stdin_open() else None
+        piped = _Lines(self._commands)  # the same commands from another process (monoguide check)
         while not stopped():
             self._devices.check_running()
-            watched = [lines for lines in (plc_lines, commands, robot_lines) if lines is not None and lines.open]
+            watched = [lines for lines in (plc_lines, commands, piped, robot_lines) if lines is not None and lines.open]
             if commands in watched and not _stdin_readable_now():
                 watched.remove(commands)
             for lines, line in _ready_lines(watched, SERVE_WAIT_S):
@@ -127,13 +132,14 @@ class SimulatedCell(Owner):
             robot = None
             if cfg.robot is not None and cfg.robot.simulated:
                 robot, state["robot"] = _start_robot(cfg, sim, claim, devices, truth_log, part_types)
+            state["commands"], commands = _command_pipe(claim, resources)
             line = None
             if plc and cfg.plc is not None:
                 line = devices.start("plc", plc_argv(cfg, parts, grasp=robot is not None, jobs=part_types),
                                      commands=True)
                 state["plc"] = {"host": line.host, "port": line.port, "pid": line.process.pid}
             write_sim_state(claim.path, state)
-            return cls(cfg, claim.path, state, devices, tracker, robot, line, resources.pop_all())
+            return cls(cfg, claim.path, state, devices, tracker, robot, line, resources.pop_all(), commands)
 
     def _relay(self, device: Device | None, line: str) -> None:
         """``line`` to the standard input of a simulated ``device`` (none in this cell: nothing to do)."""
@@ -165,6 +171,19 @@ def _check(cfg: CellConfig, truth_log: Path | None) -> None:
     if truth_log is not None and (cfg.robot is None or not cfg.robot.simulated):
         raise ConfigError(f"--truth-log {truth_log}: the part supply runs in the simulated robot controller; "
                           f"{cfg.path} has no [robot] backend = \"sim-ur\" or \"sim-kuka\"")
+
+
+def _command_pipe(claim: StateFileClaim, resources: contextlib.ExitStack) -> tuple[str, int]:
+    """The named pipe beside the state file that takes sim-cell's commands from other processes (mode 0600: only
+    this user's), and its read end. sim-cell holds a write end too, so that a writer closing it is no end of
+    input; both are closed with ``resources``, and the claim deletes the pipe."""
+    path = claim.beside("-commands")
+    path.unlink(missing_ok=True)  # a killed sim-cell's
+    os.mkfifo(path, 0o600)
+    read = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    resources.callback(os.close, read)
+    resources.callback(os.close, os.open(path, os.O_WRONLY | os.O_NONBLOCK | os.O_CLOEXEC))
+    return str(path), read
 
 
 def _start_robot(cfg: CellConfig, sim: Any, claim: StateFileClaim, devices: Devices,
@@ -203,6 +222,8 @@ class _Lines:
     def read(self) -> list[str]:
         try:
             chunk = os.read(self.fd, 65536)
+        except BlockingIOError:  # the command pipe: nothing after all
+            return []
         except OSError:
             chunk = b""
         if not chunk:  # end of input: what is left is the last line

@@ -11,7 +11,10 @@ line's ``monoguide run`` reads ``/etc/monoguide/cell.toml``.
 
 With ``--calibration CELL.toml`` the service reads a second file, ``service.toml``: the same, with the
 calibration values of ``CELL.toml`` (``[camera.intrinsics]``, ``[camera] T_f_c``, ``[reference] T_cf_b`` and
-``T_cf_w0``, each ``[[measuring_poses]]`` ``T_cf_si`` by name) and ``[sim] truth_config`` naming ``cell.toml``:
+``T_cf_w0``, each part type's ``T_cf_w0``, each ``[[measuring_poses]]`` ``T_cf_si`` and ``[[reference_marks]]``
+``position_cf`` by name), its ``[calibration]`` provenance (so that a part type the wizard has not calibrated is
+refused, ``PART_NOT_CALIBRATED``, before anything moves, as ``run`` on that file does) and ``[sim] truth_config``
+naming ``cell.toml``:
 the service believes the calibration, the simulated devices (the camera in the service's process too) keep
 the truth of ``--config``.
 
@@ -29,7 +32,6 @@ import dataclasses
 import json
 import random
 import socket
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -37,7 +39,7 @@ from typing import Any
 import tomlkit
 import tomlkit.exceptions
 
-from monoguide.daemon.config import load_cell_config
+from monoguide.daemon.config import load_cell_config, read_config_toml
 from monoguide.daemon.plan import cell_layout
 from monoguide.drivers.atomic_file import write_atomic
 from monoguide.drivers.errors import ConfigError
@@ -142,7 +144,9 @@ def with_calibration(truth: dict[str, Any], calibrated: dict[str, Any], path: Pa
                                                                                               list[str]]:
     """``truth`` (a cell config's TOML data) with the calibration values of ``calibrated``: the data, and the
     keys taken (``camera.intrinsics``, ``camera.T_f_c``, ``reference.T_cf_b``, ``reference.T_cf_w0``,
-    ``measuring_poses.<name>.T_cf_si``). A value ``calibrated`` lacks stays the truth's."""
+    ``parts.<job>.T_cf_w0``, ``measuring_poses.<name>.T_cf_si``, ``reference_marks.<name>.position_cf``) and its
+    ``[calibration]`` provenance (``calibration``; none when ``calibrated`` has none). A value ``calibrated`` lacks
+    stays the truth's."""
     data = json.loads(json.dumps(truth))  # a deep copy (TOML data is JSON data)
     taken = []
     camera = calibrated.get("camera", {})
@@ -169,9 +173,20 @@ def with_calibration(truth: dict[str, Any], calibrated: dict[str, Any], path: Pa
                               f"({', '.join(str(n) for n in poses)})")
         poses[name]["T_cf_si"] = pose["T_cf_si"]
         taken.append(f"measuring_poses.{name}.T_cf_si")
+    marks = {m.get("name"): m for m in data.get("reference_marks", [])}
+    for mark in calibrated.get("reference_marks", []):
+        if "position_cf" in mark and mark.get("name") in marks:  # surveyed by the wizard's marks step
+            marks[mark["name"]]["position_cf"] = mark["position_cf"]
+            taken.append(f"reference_marks.{mark['name']}.position_cf")
     if not taken:
         raise ConfigError(f"--calibration {path}: no calibration values in it ([camera.intrinsics], [camera] T_f_c, "
                           f"[reference] T_cf_b / T_cf_w0, [[measuring_poses]] T_cf_si)")
+    # the wizard's provenance says which part types it calibrated: the service refuses the others before anything
+    # moves (PART_NOT_CALIBRATED), as `monoguide run` on that file does; a file without one was entered by hand
+    data.pop("calibration", None)
+    if isinstance(calibrated.get("calibration"), dict):
+        data["calibration"] = calibrated["calibration"]
+        taken.append("calibration")
     return data, taken
 
 
@@ -204,12 +219,7 @@ def _jobs(config: Any, asked: tuple[int, ...]) -> tuple[int, ...]:
 
 
 def _read_toml(path: Path, option: str) -> dict[str, Any]:
-    try:
-        return tomllib.loads(Path(path).read_text())
-    except OSError as exc:
-        raise ConfigError(f"{option} {path}: cannot read it: {exc.strerror or exc}") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{option} {path}: not valid TOML: {exc}") from exc
+    return read_config_toml(path, "cell config", label=f"{option} {path}")  # a regular file of at most 4 MiB
 
 
 def pick_free_host(ports: tuple[int, ...], net: str = AUTO_HOST_NET) -> str:

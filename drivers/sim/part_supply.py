@@ -81,6 +81,14 @@ class PartSupply:
         return compose(invert(self.T_cf_b), self.T_cf_w)
 
     @property
+    def reference_state(self) -> str | None:
+        """Where the reference part is (``robot reference-part``): ``"in the cell"`` (it lies there until grasped:
+        every visit finds it), ``"next"`` (the next part to arrive is it), or None (neither)."""
+        if self.reference and not self._logged:
+            return "in the cell"
+        return "next" if self.reference_next else None
+
+    @property
     def next_job(self) -> int:
         """The type of the part that arrives next."""
         return self.sequence[self.part % len(self.sequence)]

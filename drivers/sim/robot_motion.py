@@ -15,19 +15,23 @@ The truth comes from the robot spec file that :meth:`SimCell.write_robot_spec` w
 changes: a new part); what the robot did goes to a truth file (:func:`read_truth`) that the in-process
 simulated camera follows (:meth:`SimCell.set_actual_flange_pose`) and tests score against: its stops (true:
 ``T_b_f``, ``stops``; as reported: ``T_b_f_reported``, ``stops_reported``, which see only the share
-``reported_repeatability_fraction`` of each stop's deviation), the offsets it took, its grasps, and at every
-moment what it holds (``held_sequence``, ``offset_valid``).
+``reported_repeatability_fraction`` of each stop's deviation), the offsets it took, its grasps, at every
+moment what it holds (``held_sequence``, ``offset_valid``) and, with a part supply, the part in the cell
+(``T_cf_w``, ``part_type``, ``reference_part``: :attr:`PartSupply.reference_state`).
 
 Faults (:data:`FAULT_MODES` and :data:`FAULT_ACTIONS`, at start ``--fault`` or at run time one per line on
-standard input; ``none`` clears a mode): modes, from the next request on: ``stall`` (the controller freezes:
-nothing answered, nothing sent), ``drop`` (it closes every connection), ``protective-stop`` (safety stop, no
-motion), ``never-reach`` (moves but never arrives; also a move under way), ``no-ack`` (offsets are neither taken
-nor acknowledged: the part keeps no offset); at once ``program-stopped`` (the program is not running; ``none``
-starts it again from the beginning, as Play after Stop). One-shot: ``restart`` (Stop/Play now: the program stops
-for ``RESTART_DOWN_S`` and starts again, its variables reset, the UR request registers as they were),
-``cut-after-offset MS [DOWN_S]`` (when the next offset request arrives, MS ms later every connection is closed and
-any new one closed at once for DOWN_S s, default 1; the program runs on and takes the offset on its own schedule,
-as after a cable pull). What the robot adapter reports for each (``drivers/errors.py``): stall ``DEVICE_TIMEOUT``
+standard input; ``none`` clears a mode and every one-shot still armed): modes, from the next request on:
+``stall`` (the controller freezes: nothing answered, nothing sent), ``drop`` (it closes every connection),
+``protective-stop`` (safety stop, no motion), ``never-reach`` (moves but never arrives; also a move under way),
+``no-ack`` (offsets are neither taken nor acknowledged: the part keeps no offset); at once ``program-stopped`` (the
+program is not running; ``none`` starts it again from the beginning, as Play after Stop). One-shot: ``restart``
+(Stop/Play now: the program stops for ``RESTART_DOWN_S`` and starts again, its variables reset, the UR request
+registers as they were), ``cut-after-offset MS [DOWN_S]`` (when the next offset request arrives, MS ms later every
+connection is closed and any new one closed at once for DOWN_S s, default 1; the program runs on and takes the
+offset on its own schedule, as after a cable pull), ``reference-part`` (the part supply's next part is the
+reference part). ``none`` disarms a cut-after-offset whose offset has not come yet and a reference part that has
+not arrived yet; a cut under way ends (the controller takes connections again); a reference part in the cell stays
+until grasped. What the robot adapter reports for each (``drivers/errors.py``): stall ``DEVICE_TIMEOUT``
 (402), drop ``DEVICE_DISCONNECTED`` (403), protective-stop ``ROBOT_PROTECTIVE_STOP`` (422), never-reach
 ``ROBOT_POSITION_TIMEOUT`` (423), no-ack ``ROBOT_ACK_TIMEOUT`` (424), program-stopped and restart
 ``ROBOT_NOT_READY`` (421; KUKA's restart closes the channel: ``DEVICE_DISCONNECTED``).
@@ -211,6 +215,10 @@ class SimRobotProgram:
             if self.supply is not None:
                 self.supply.reference_next = True
             return
+        if fault.name == "none":  # every armed one-shot too: a cut not yet taken, a reference part not yet arrived
+            self._cut = None
+            if self.supply is not None:
+                self.supply.reference_next = False
         was = self.fault
         self.fault = fault.name
         if fault.name != "protective-stop":
@@ -251,8 +259,8 @@ class SimRobotProgram:
             "held_sequence": self.held_sequence,
             "offset_valid": self.offset_valid,
             "T_b_f": self.T_b_f.tolist(),
-            **({"T_cf_w": self.supply.T_cf_w.tolist(), "part_type": self.supply.job}
-               if self.supply is not None else {}),
+            **({"T_cf_w": self.supply.T_cf_w.tolist(), "part_type": self.supply.job,
+                "reference_part": self.supply.reference_state} if self.supply is not None else {}),
             "stops": {str(k): T.tolist() for k, T in self.stops.items()},
             "T_b_f_reported": self.T_b_f_reported.tolist(),
             "stops_reported": {str(k): T.tolist() for k, T in self.stops_reported.items()},

@@ -5,7 +5,8 @@ A controller (:class:`SimController`) runs :class:`~monoguide.drivers.sim.robot_
 :meth:`SimController.step`: once a period (the motion) and at once when a request arrives (the program polls its
 inputs every few ms), each step and the truth file written in one synchronous call. Standard input (with
 ``--commands``) carries one line per command: a fault (``robot_motion.FAULT_MODES``, ``FAULT_ACTIONS``) or
-``grasp`` (the cell's go, which ``monoguide sim-cell`` forwards from the simulated PLC). Each grasp the program
+``grasp`` (the cell's go, which ``monoguide sim-cell`` forwards from the simulated PLC); ``none`` clears the mode
+in force and every one-shot fault still armed or under way (a cut due or in progress). Each grasp the program
 runs or refuses is printed on standard output as ``GRASP {json}`` (sim-cell passes it back to the PLC and into its
 own output).
 """
@@ -55,6 +56,7 @@ class SimController:
         self.t0 = time.monotonic()
         self.stalled = False
         self.refuse_until = 0.0  # a cut: new connections are closed at once until then (time.monotonic())
+        self._cut_timer: asyncio.TimerHandle | None = None  # a cut due MS ms after its offset arrived
 
     def now(self) -> float:
         return time.monotonic() - self.t0
@@ -86,7 +88,7 @@ class SimController:
         if cut.after_ms <= 0:
             self._cut(cut)  # now: before the program has even seen the request, nothing of its answer can go out
         else:
-            asyncio.get_running_loop().call_later(cut.after_ms / 1000.0, self._cut, cut)
+            self._cut_timer = asyncio.get_running_loop().call_later(cut.after_ms / 1000.0, self._cut, cut)
 
     def command(self, text: str) -> None:
         """A line of standard input: ``grasp`` (the go) or a fault (``none`` clears); a bad one is said on stderr."""
@@ -103,6 +105,8 @@ class SimController:
             print(f"error: {exc}", file=sys.stderr, flush=True)
             return
         self.program.command(fault, self.now())
+        if fault.name == "none":
+            self._end_cut()
         write_truth(self.truth_path, self.program.truth())  # the fault in force, even while stalled (tests wait)
         if fault.name != "stall" and self.stalled:
             log.info("stall ends: the controller answers again")
@@ -158,7 +162,18 @@ class SimController:
 
     # --- private ----------------------------------------------------------------------------------
 
+    def _end_cut(self) -> None:
+        """``none``: a cut due is not made, a cut under way ends (the cable is back in)."""
+        if self._cut_timer is not None:
+            self._cut_timer.cancel()
+            self._cut_timer = None
+            log.info("none: the cut due is not made")
+        if self.refusing:
+            log.info("none: the cut ends; connections are taken again")
+        self.refuse_until = 0.0
+
     def _cut(self, cut: FaultCommand) -> None:
+        self._cut_timer = None
         log.info("cut: every connection closed; new ones closed at once for %g s", cut.down_s)
         self.refuse_until = time.monotonic() + cut.down_s
         self.drop_all()
