@@ -289,8 +289,9 @@ def _scan_grey(
             rim = measure_rim(grey, seed, min_contrast=min_contrast, max_blur_px=max_blur_px,
                               max_saturated_fraction=max_saturated_fraction, photometric=photometric,
                               min_contrast_to_noise=min_contrast_to_noise)
-        except FeatureNotFound as exc:
-            refused.append(RefusedBlob(center=seed.center, radius_px=seed.radius_px, error=exc))
+        except FeatureNotFound as exc:  # kept as its reason: without the traceback, whose frames (this one, with
+            # `refused` and the image) would make a cycle that holds them until the garbage collector's next pass
+            refused.append(RefusedBlob(center=seed.center, radius_px=seed.radius_px, error=exc.with_traceback(None)))
             continue
         c = rim.ellipse.center
         if not (x0 - 0.5 <= c[0] < x1 - 0.5 and y0 - 0.5 <= c[1] < y1 - 0.5):

@@ -144,7 +144,7 @@ class CellDevices:
             slot.handle = await asyncio.to_thread(slot.open)
         except MonoguideError as exc:
             slot.attempts += 1
-            slot.last_error = exc
+            slot.last_error = exc.with_traceback(None)  # its code and message: not the frames (a reference cycle)
             delay = BACKOFF_S[min(slot.attempts, len(BACKOFF_S)) - 1]
             log.warning("%s: cannot connect (%s %s); reconnecting in %g s", slot.name, exc.code, exc.message, delay)
             return

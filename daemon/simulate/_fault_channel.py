@@ -2,7 +2,8 @@
 device that plays it.
 
 ``plc <fault>`` goes to the simulated PLC's standard input, ``robot <fault>`` to the simulated robot
-controller's (both at run time; ``none`` clears; ``robot cut-after-offset MS [DOWN_S]`` takes its numbers),
+controller's (both at run time; ``none`` clears; ``robot cut [DOWN_S]`` and ``robot cut-after-offset MS [DOWN_S]``
+take their numbers),
 ``camera <failure> [count]`` into the state file as ``"camera_fault": {"failure", "count", "serial"}`` for the
 daemon's in-process simulated camera (a new serial per command, so that it applies once). An accepted command
 is echoed on stdout as ``fault: <device> <fault>``, a refused one on stderr as ``fault error: <reason>``: a
@@ -36,6 +37,7 @@ log = logging.getLogger(__name__)
 
 MAX_CAMERA_COUNT = 1000
 MAX_CUT_MS = 60_000.0  # robot cut-after-offset MS [DOWN_S]: MS 0..60000, DOWN_S above 0 up to 60 (the simulator's)
+CUT_DEFAULT_S = 1.0  # robot cut [DOWN_S], cut-after-offset's DOWN_S: the simulator's default
 
 # the faults each simulated device takes (drivers/sim/plc.py FAULTS, drivers/sim/robot_motion.py FAULT_MODES,
 # drivers/sim/camera.py FAILURES): copied, since runtime code never imports the simulator;
@@ -45,9 +47,10 @@ FAULT_COMMANDS: dict[str, tuple[str, ...]] = {
     "robot": ("none", "stall", "drop", "protective-stop", "never-reach", "no-ack", "program-stopped"),
     "camera": ("timeout", "disconnect", "black", "occluded", "glare"),
 }
-# the robot's one-shot faults (drivers/sim/robot_motion.py FAULT_ACTIONS): Stop/Play now, the cut after the next
-# offset (``robot cut-after-offset MS [DOWN_S]``); copied likewise, checked by tests/drivers/test_robot_faults.py
-ROBOT_ACTIONS: tuple[str, ...] = ("restart", "cut-after-offset", "reference-part")
+# the robot's one-shot faults (drivers/sim/robot_motion.py FAULT_ACTIONS): Stop/Play now, the cable pulled now
+# (``robot cut [DOWN_S]``), the cut after the next offset (``robot cut-after-offset MS [DOWN_S]``); copied likewise,
+# checked by tests/drivers/test_robot_faults.py
+ROBOT_ACTIONS: tuple[str, ...] = ("restart", "cut", "cut-after-offset", "reference-part")
 # the calibration faults (drivers/sim/calibration_faults.py CALIBRATION_FAULTS): copied likewise, checked by
 # tests/daemon/simulate/test_calibration_faults.py; persistent, see the module's doc
 CALIBRATION_COMMANDS: dict[str, tuple[str, ...]] = {"camera": ("bump", "focal"), "pose": ("drift",)}
@@ -104,6 +107,8 @@ class FaultChannel:
             return device, fault, self._camera(text, fault, rest)
         if device == "robot" and fault == "cut-after-offset":
             _check_cut(text, rest)
+        elif device == "robot" and fault == "cut":
+            _check_cut_now(text, rest)
         elif rest:
             raise ValueError(f"{text!r}: {device} {fault} takes nothing more, got {' '.join(rest)!r}")
         target = self._devices.get(device)
@@ -229,6 +234,17 @@ def _numbers(text: str, words: list[str], names: tuple[str, ...], usage: str) ->
 def _within(text: str, name: str, value: float, limit: float) -> None:
     if abs(value) > limit:
         raise ValueError(f"{text!r}: {name} {value:g} is beyond +-{limit:g}")
+
+
+def _check_cut_now(text: str, numbers: list[str]) -> None:
+    """``robot cut [DOWN_S]``: DOWN_S above 0 up to 60 s (default 1)."""
+    try:
+        down_s = float(numbers[0]) if len(numbers) == 1 else CUT_DEFAULT_S
+    except ValueError:
+        down_s = math.nan
+    if len(numbers) > 1 or not 0 < down_s <= MAX_CUT_MS / 1000:
+        raise ValueError(f"{text!r}: robot cut takes DOWN_S (seconds, above 0 up to {MAX_CUT_MS / 1000:g}; "
+                         "default 1)")
 
 
 def _check_cut(text: str, numbers: list[str]) -> None:

@@ -26,7 +26,9 @@ standard input; ``none`` clears a mode and every one-shot still armed): modes, f
 ``no-ack`` (offsets are neither taken nor acknowledged: the part keeps no offset); at once ``program-stopped`` (the
 program is not running; ``none`` starts it again from the beginning, as Play after Stop). One-shot: ``restart``
 (Stop/Play now: the program stops for ``RESTART_DOWN_S`` and starts again, its variables reset, the UR request
-registers as they were), ``cut-after-offset MS [DOWN_S]`` (when the next offset request arrives, MS ms later every
+registers as they were), ``cut [DOWN_S]`` (the cable pulled now: every connection closed, any new one closed at once
+for DOWN_S s, default 1; the program runs on), ``cut-after-offset MS [DOWN_S]`` (when the next offset request
+arrives, MS ms later every
 connection is closed and any new one closed at once for DOWN_S s, default 1; the program runs on and takes the
 offset on its own schedule, as after a cable pull), ``reference-part`` (the part supply's next part is the
 reference part). ``none`` disarms a cut-after-offset whose offset has not come yet and a reference part that has
@@ -210,6 +212,8 @@ class SimRobotProgram:
             return
         if fault.name == "cut-after-offset":
             self._cut = fault
+            return
+        if fault.name == "cut":  # the controller's connections, not the program: it runs on
             return
         if fault.name == "reference-part":
             if self.supply is not None:

@@ -14,7 +14,7 @@ import numpy as np
 FAULT_MODES = ("none", "stall", "drop", "protective-stop", "never-reach", "no-ack", "program-stopped")
 # one-shot: they act once, and leave the mode in force as it was; ``reference-part``: the part supply's next part is
 # the reference part, exactly as taught, and it stays until grasped (a check job measures it, visit after visit)
-FAULT_ACTIONS = ("restart", "cut-after-offset", "reference-part")
+FAULT_ACTIONS = ("restart", "cut", "cut-after-offset", "reference-part")
 CUT_DOWN_S = 1.0  # cut-after-offset: how long new connections are closed at once (default)
 MAX_CUT_MS = 60_000.0
 
@@ -41,7 +41,7 @@ class RequestSource(Protocol):
 
 @dataclass(frozen=True)
 class FaultCommand:
-    """A fault command line, checked: its name and, for ``cut-after-offset``, MS and DOWN_S."""
+    """A fault command line, checked: its name and, for ``cut-after-offset``, MS and DOWN_S (``cut``: DOWN_S)."""
 
     name: str
     after_ms: float = 0.0
@@ -79,6 +79,16 @@ def parse_fault(text: str) -> FaultCommand:
     name, *args = text.split()
     if name not in FAULT_MODES + FAULT_ACTIONS:
         raise ValueError(f"fault {name!r}: expected one of {', '.join(FAULT_MODES + FAULT_ACTIONS)}")
+    if name == "cut":  # the cable pulled now: DOWN_S
+        if len(args) > 1:
+            raise ValueError(f"fault cut takes [DOWN_S], got {' '.join(args)!r}")
+        try:
+            down_s = float(args[0]) if args else CUT_DOWN_S
+        except ValueError as exc:
+            raise ValueError(f"fault cut {args[0]}: DOWN_S is a number of seconds") from exc
+        if not 0 < down_s <= MAX_CUT_MS / 1000:
+            raise ValueError(f"fault cut {args[0]}: DOWN_S above 0 up to {MAX_CUT_MS / 1000:g}")
+        return FaultCommand(name, 0.0, down_s)
     if name != "cut-after-offset":
         if args:
             raise ValueError(f"fault {name} takes nothing more, got {' '.join(args)!r}")

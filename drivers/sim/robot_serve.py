@@ -107,6 +107,8 @@ class SimController:
         self.program.command(fault, self.now())
         if fault.name == "none":
             self._end_cut()
+        elif fault.name == "cut":
+            self._cut(fault)
         write_truth(self.truth_path, self.program.truth())  # the fault in force, even while stalled (tests wait)
         if fault.name != "stall" and self.stalled:
             log.info("stall ends: the controller answers again")

@@ -468,6 +468,9 @@ async def _play(cell: Cell, row: Row) -> tuple[Row, Seen, list[str]]:
     _check_cycle(cell, row, seen, before, problems)
     if cell.service is not None and cell.level_mb is not None:
         seen.notes.append(f"rss after the fault {cell.rss_mb():.0f} MB")
+        if os.environ.get("MONOGUIDE_FAULT_MATRIX_RSS"):
+            status = Path(f"/proc/{cell.service.pid}/status").read_text().splitlines()
+            seen.notes.append(" ".join(x.replace("\t", "").replace(" kB", "") for x in status if x.startswith("Rss")))
     try:
         await cell.ready()
         if cell.level_mb is None:  # restarted: its level anew

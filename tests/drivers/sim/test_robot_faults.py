@@ -39,6 +39,8 @@ def test_sim_cell_knows_the_simulators_fault_names() -> None:
     ("restart", FaultCommand("restart")),
     ("cut-after-offset 0", FaultCommand("cut-after-offset", 0.0, CUT_DOWN_S)),
     ("cut-after-offset 4.5 2", FaultCommand("cut-after-offset", 4.5, 2.0)),
+    ("cut", FaultCommand("cut", 0.0, CUT_DOWN_S)),
+    ("cut 2.5", FaultCommand("cut", 0.0, 2.5)),
     ("none", FaultCommand("none")),
 ])
 def test_fault_commands_parse(text: str, command: FaultCommand) -> None:
@@ -52,6 +54,9 @@ def test_fault_commands_parse(text: str, command: FaultCommand) -> None:
     ("cut-after-offset 5 0", "DOWN_S above 0"),
     ("cut-after-offset -1", "MS 0"),
     ("cut-after-offset 1 2 3", "MS"),
+    ("cut 0", "DOWN_S above 0"),
+    ("cut later", "a number"),
+    ("cut 1 2", "takes \\[DOWN_S\\]"),
     ("melt", "expected one of"),
 ])
 def test_bad_fault_commands_are_refused_naming_what_is_wrong(text: str, match: str) -> None:

@@ -391,3 +391,36 @@ def test_perspective_correction_is_exact_for_oblique_circles(tilt_deg, seed):
     correction = perspective_correction(camera, T, hole.center_w, hole.normal_w, hole.radius_mm)
     assert np.hypot(*correction) > 0.08
     np.testing.assert_allclose(found.center - truth, correction, atol=0.004)
+
+
+def test_a_refused_hole_leaves_no_frame_behind_in_a_reference_cycle():
+    """The finder's refusal (glare on the hole's rim: a blob refused on the way) holds none of the search's frames in
+    a reference cycle: once the service has let go of the error's traceback, the images and arrays of the search are
+    freed at once, not at the garbage collector's next pass (a failed cycle's 20-30 MB, until then)."""
+    import gc
+    import types
+
+    from monoguide.daemon.errors import drop_tracebacks
+
+    camera, T, hole, view = _scene(9, 7.0, RenderSettings(), clutter=True)
+    glare = Glare(center_px=(float(view.centers_px[0][0]), float(view.centers_px[0][1])), sigma_px=40.0,
+                  peak_grey=400.0)
+    _, _, _, view = _scene(9, 7.0, RenderSettings(glare=glare), clutter=True)
+    gc.collect()
+    gc.disable()
+    gc.set_debug(gc.DEBUG_SAVEALL)
+    try:
+        with pytest.raises(ImageSaturated) as refused:
+            measure_hole(view.image, view.centers_px[0], _radius_px(camera, T, hole))
+        error = refused.value
+        drop_tracebacks(error)
+        del refused
+        gc.collect()
+        frames_held = [o for o in gc.garbage if isinstance(o, types.FrameType)]
+        images = sum(v.nbytes for f in frames_held for v in f.f_locals.values() if isinstance(v, np.ndarray))
+        assert not frames_held, f"{len(frames_held)} frames in a reference cycle, holding {images} bytes of arrays"
+        assert "saturated" in error.message  # the reason stays
+    finally:
+        gc.set_debug(0)
+        gc.garbage.clear()
+        gc.enable()
