@@ -128,18 +128,19 @@ def read_cycle(journal: Journal, number: int) -> CycleRow:
 
 def find_rows(journal: Journal, query: CycleQuery) -> tuple[list[CycleRow], list[str]]:
     """The rows ``query`` finds, newest first, and what could not be read among them: a row the journal cannot
-    decode is left out and named."""
-    try:
-        return [cycle_row(r) for r in journal.find_cycles(query)], []
-    except UNDECODABLE:
-        pass
+    decode is left out and named; the readable rows around it are read as many at a time as read together."""
     rows: list[CycleRow] = []
     notes: list[str] = []
     before = query.before
     while len(rows) < query.limit:
+        want = query.limit - len(rows)
         try:
-            found = journal.find_cycles(_page(query, before, 1))
+            found = journal.find_cycles(_page(query, before, want))
         except UNDECODABLE as exc:
+            readable = _readable(journal, query, before, want)
+            found = journal.find_cycles(_page(query, before, readable)) if readable else []
+            rows += [cycle_row(r) for r in found]
+            before = found[-1].number if found else before
             damaged = _damaged_below(journal, query, before)
             if damaged is None:
                 notes.append(f"a row below {_below(before)} cannot be read ({_why(exc)}); the rows further down are "
@@ -151,10 +152,10 @@ def find_rows(journal: Journal, query: CycleQuery) -> tuple[list[CycleRow], list
                 + f" ({_why(exc)})")
             before = damaged
             continue
-        if not found:
+        rows += [cycle_row(r) for r in found]
+        if len(found) < want:
             break
-        rows.append(cycle_row(found[0]))
-        before = found[0].number
+        before = found[-1].number
     return rows, notes
 
 
@@ -315,6 +316,21 @@ def _damaged_below(journal: Journal, query: CycleQuery, before: int) -> int | No
 def _highest_reading(journal: Journal, query: CycleQuery, start: int, stop: int) -> int | None:
     """The highest ``x`` from ``start`` down to (not including) ``stop`` whose query reads."""
     return next((x for x in range(start, stop, -1) if _reads(journal, query, x)), None)
+
+
+def _readable(journal: Journal, query: CycleQuery, before: int, want: int) -> int:
+    """How many of the ``want`` rows ``query`` finds below ``before`` read before the first that does not (halving:
+    the first ``k`` read together exactly when ``k`` is below that one's place)."""
+    low, high = 0, want  # the first low read, the first high do not
+    while high - low > 1:
+        middle = (low + high) // 2
+        try:
+            journal.find_cycles(_page(query, before, middle))
+        except UNDECODABLE:
+            high = middle
+        else:
+            low = middle
+    return low
 
 
 def _reads(journal: Journal, query: CycleQuery, before: int) -> bool:
