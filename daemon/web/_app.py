@@ -24,10 +24,12 @@ from starlette.staticfiles import StaticFiles
 
 from monoguide.daemon.errors import JournalEntryMissing
 from monoguide.daemon.web._calibration import calibration_facts, report_figures
-from monoguide.daemon.web._cycle import cycle_facts, hole_crop
+from monoguide.daemon.web._cycle import cycle_facts, hole_crop, part_config
 from monoguide.daemon.web._cycles import BadQuery, cycle_line, cycles_request
 from monoguide.daemon.web._images import ImageGone, crop, image_file, preview
 from monoguide.daemon.web._now import now_facts
+from monoguide.daemon.web._overlay import view_images
+from monoguide.daemon.web._rows import CycleRow, find_rows, read_cycle
 from monoguide.daemon.web._source import StateSource
 from monoguide.daemon.web._trends import CHARTS, chart_png, trend_rows, trend_window
 from monoguide.solver.errors import MonoguideError
@@ -78,7 +80,7 @@ class _Pages:
             return self._error(400, "BAD_FILTER", str(bad))
         try:
             with self.source.journal() as journal:
-                rows = journal.find_cycles(asked.query)
+                rows, notes = find_rows(journal, asked.query)
                 codes = journal.error_codes()
                 counter = journal.cycle_counter()
         except MonoguideError as error:
@@ -87,8 +89,8 @@ class _Pages:
         if len(rows) == asked.query.limit and rows[-1].number > 1:
             older = {**asked.given, "before": str(rows[-1].number)}
         return self._page("cycles.html", "Cycles", lines=[cycle_line(r) for r in rows], given=asked.given,
-                          codes=codes, counter=counter, older=older, newest={k: v for k, v in asked.given.items()
-                                                                             if k != "before"})
+                          codes=codes, counter=counter, older=older, notes=notes,
+                          newest={k: v for k, v in asked.given.items() if k != "before"})
 
     def cycle(self, request: Request) -> Response:
         number = request.path_params["number"]
@@ -103,12 +105,17 @@ class _Pages:
         number = request.path_params["number"]
         try:
             with self.source.journal() as journal:
-                row = journal.cycle(number)
+                row = read_cycle(journal, number)
         except MonoguideError as error:
             return self._journal_error(error)
         if row.record is None:
-            return self._error(404, "JOURNAL_NO_RECORD", f"cycle {number} failed before it had a record")
-        return Response(json.dumps(row.record, indent=1) + "\n", media_type="application/json", headers={
+            why = "its row cannot be read" if row.unreadable else "it failed before it had a record"
+            return self._error(404, "JOURNAL_NO_RECORD", f"cycle {number} has no record: {why}")
+        try:
+            text = json.dumps(row.record, indent=1)
+        except (ValueError, RecursionError) as exc:
+            return self._error(404, "JOURNAL_NO_RECORD", f"cycle {number}: its record cannot be written out ({exc})")
+        return Response(text + "\n", media_type="application/json", headers={
             "content-disposition": f'attachment; filename="cycle-{number}-record.json"'})
 
     def original(self, request: Request) -> Response:
@@ -121,9 +128,11 @@ class _Pages:
     def hole(self, request: Request) -> Response:
         point = request.path_params["point"]
 
-        def answer(path: Path, row: Any, view: int) -> Response:
+        def answer(path: Path, row: CycleRow, view: int) -> Response:
             try:
-                _, _, box = hole_crop(row, self.source.config, view, point)
+                path, box = hole_crop(self.source.state_dir, row, self.source.config, view, point)
+            except ImageGone:
+                raise
             except LookupError as missing:
                 return self._error(404, "NO_SUCH_HOLE", str(missing))
             return Response(crop(path, box), media_type="image/png")
@@ -144,7 +153,7 @@ class _Pages:
         try:
             window = trend_window(dict(request.query_params))
             with self.source.journal() as journal:
-                rows = trend_rows(journal, window, time.time())
+                rows, _ = trend_rows(journal, window, time.time())
         except BadQuery as bad:
             return self._error(400, "BAD_FILTER", str(bad))
         except MonoguideError as error:
@@ -152,7 +161,7 @@ class _Pages:
         return Response(chart_png(name, rows), media_type="image/png", headers=NO_STORE)
 
     def calibration(self, request: Request) -> Response:
-        return self._page("calibration.html", "Calibration", facts=calibration_facts(self.source.config))
+        return self._page("calibration.html", "Calibration", facts=calibration_facts(self.source))
 
     def calibration_figure(self, request: Request) -> Response:
         found = report_figures(self.source.config) if self.source.config is not None else []
@@ -171,8 +180,11 @@ class _Pages:
         number, view = request.path_params["number"], request.path_params["view"] - 1
         try:
             with self.source.journal() as journal:
-                row = journal.cycle(number)
-            return answer(image_file(self.source.state_dir, row, view), row, view)
+                row = read_cycle(journal, number)
+            images = view_images(row, part_config(self.source.config, row.job))
+            path = image_file(self.source.state_dir, number, view, images[view] if 0 <= view < len(images) else None,
+                              row.images_pruned_at is not None)
+            return answer(path, row, view)
         except ImageGone as gone:
             return self._error(404, "IMAGE_GONE", str(gone))
         except MonoguideError as error:
@@ -191,19 +203,25 @@ class _Pages:
         return self._page("error.html", f"{code}", status=status, code=code, message=message, status_code=status)
 
 
-def _when(seconds: float | None) -> str:
-    if seconds is None or isinstance(seconds, jinja2.Undefined):
+def _when(seconds: Any) -> str:
+    if not isinstance(seconds, int | float) or isinstance(seconds, bool):
         return "-"
-    return datetime.fromtimestamp(seconds).strftime("%Y-%m-%d %H:%M:%S")
+    try:
+        return datetime.fromtimestamp(seconds).strftime("%Y-%m-%d %H:%M:%S")
+    except (ValueError, OverflowError, OSError):
+        return f"{seconds:g} (not a time)"
 
 
 def _number(value: Any, digits: int = 3) -> str:
-    if value is None or isinstance(value, jinja2.Undefined):
+    if isinstance(value, bool) or not isinstance(value, int | float):
         return "-"
-    return f"{float(value):.{digits}f}"
+    try:
+        return f"{float(value):.{digits}f}"
+    except OverflowError:
+        return "-"
 
 
 def _xyzabc(values: Any) -> str:
-    if not values or isinstance(values, jinja2.Undefined):
+    if not isinstance(values, list | tuple) or not values:
         return "-"
-    return " ".join(f"{float(v):.2f}" for v in values)
+    return " ".join(_number(v, 2) for v in values)

@@ -1,8 +1,8 @@
 """The *Calibration* page: where the cell's calibration comes from (the config's ``[calibration]`` provenance, as
 ``monoguide calibrate`` writes it), the wizard's report beside its session (``calibration-report.md`` and its
 PNGs, shown as text and images: the PNGs addressed by their place in the folder's sorted list, never by a name
-from the URL), and the previous calibration files kept beside the config. The health monitor's level is shown as
-not available: this monoguide has none.
+from the URL), and the previous calibration files kept beside the config; the calibration's health as the service
+keeps it (``_health``).
 """
 
 from __future__ import annotations
@@ -11,16 +11,18 @@ from pathlib import Path
 from typing import Any
 
 from monoguide.daemon.config import CellConfig
-from monoguide.daemon.web._now import HEALTH_NOT_AVAILABLE
+from monoguide.daemon.web._health import calibration_health
+from monoguide.daemon.web._source import StateSource
 
 REPORT_NAME = "calibration-report.md"
 MAX_REPORT_BYTES = 2_000_000
 
 
-def calibration_facts(config: CellConfig | None) -> dict[str, Any]:
+def calibration_facts(source: StateSource) -> dict[str, Any]:
+    health = calibration_health(source, source.service())
+    config = source.config
     if config is None:
-        return {"config": None, "provenance": None, "report": None, "figures": [], "previous": [],
-                "health": HEALTH_NOT_AVAILABLE}
+        return {"config": None, "provenance": None, "report": None, "figures": [], "previous": [], "health": health}
     provenance = dict(config.calibration or {})
     folder = report_folder(config)
     report = None
@@ -28,8 +30,7 @@ def calibration_facts(config: CellConfig | None) -> dict[str, Any]:
         report = (folder / REPORT_NAME).read_text(encoding="utf-8", errors="replace")[:MAX_REPORT_BYTES]
     return {"config": str(config.path), "provenance": provenance, "report": report,
             "report_path": None if folder is None else str(folder / REPORT_NAME),
-            "figures": [p.name for p in report_figures(config)], "previous": _previous(config),
-            "health": HEALTH_NOT_AVAILABLE}
+            "figures": [p.name for p in report_figures(config)], "previous": _previous(config), "health": health}
 
 
 def report_folder(config: CellConfig) -> Path | None:

@@ -9,7 +9,8 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
-from monoguide.daemon.service import CycleQuery, JournalRow
+from monoguide.daemon.service import CycleQuery
+from monoguide.daemon.web._rows import CycleRow
 
 PAGE = 50
 MAX_NUMBER = 2**63 - 1
@@ -47,15 +48,13 @@ def cycles_request(params: dict[str, str]) -> CyclesRequest:
     return CyclesRequest(query, given)
 
 
-def cycle_line(row: JournalRow) -> dict[str, Any]:
+def cycle_line(row: CycleRow) -> dict[str, Any]:
     """One row of the list: what a person compares between cycles."""
-    result = row.result or {}
     return {"number": row.number, "finished_at": row.finished_at, "job": row.job, "part_tag": row.part_tag,
             "status": row.status, "error_code": row.error_code, "plc_code": row.plc_code,
-            "error_message": row.error_message, "offset": result.get("base_offset_xyzabc"),
-            "rms_px": result.get("rms_px"), "sigma_mm": result.get("sigma_trans_mm"),
-            "sigma_deg": result.get("sigma_rot_deg"), "cycle_s": row.timings_s.get("cycle"),
-            "duration_s": row.finished_at - row.started_at}
+            "error_message": row.error_message, "offset": row.offset, "rms_px": row.rms_px, "sigma_mm": row.sigma_mm,
+            "sigma_deg": row.sigma_deg, "cycle_s": row.cycle_s, "duration_s": row.duration_s,
+            "unreadable": bool(row.unreadable)}
 
 
 # --- private ------------------------------------------------------------------------------------
@@ -76,5 +75,5 @@ def _time(given: dict[str, str], key: str) -> float | None:
         return None
     try:
         return datetime.fromisoformat(text).timestamp()  # local time, as the page shows times
-    except ValueError:
+    except (ValueError, OverflowError, OSError):
         raise BadQuery(f"{key} {text[:40]!r}: a date and time, YYYY-MM-DD or YYYY-MM-DDTHH:MM") from None

@@ -13,19 +13,23 @@ import time
 from datetime import UTC, datetime
 from typing import Any
 
+from monoguide.daemon.service import CycleQuery
+from monoguide.daemon.web._health import calibration_health
 from monoguide.daemon.web._meanings import meaning
-from monoguide.daemon.web._source import StateSource
+from monoguide.daemon.web._rows import find_rows, finite, read_cycle
+from monoguide.daemon.web._source import ServiceView, StateSource
 from monoguide.solver.errors import MonoguideError
 
-HEALTH_NOT_AVAILABLE = "not available (this monoguide has no calibration health monitor)"
+MAX_DEPTH = 20  # of the status file's objects shown
 
 
 def now_facts(source: StateSource) -> dict[str, Any]:
-    """Everything the *Now* page shows; plain JSON types only."""
+    """Everything the *Now* page shows; plain JSON types only (a number that is not finite is null)."""
     now = time.time()
-    facts: dict[str, Any] = {"now": now, "service": _service(source, now), "journal": _journal(source),
-                             "calibration": calibration_age(source, now), "health": HEALTH_NOT_AVAILABLE}
-    return facts
+    view = source.service()
+    facts: dict[str, Any] = {"now": now, "service": _service(view, now), "journal": _journal(source),
+                             "calibration": calibration_age(source, now), "health": calibration_health(source, view)}
+    return _plain(facts)
 
 
 def calibration_age(source: StateSource, now: float) -> dict[str, Any]:
@@ -37,19 +41,18 @@ def calibration_age(source: StateSource, now: float) -> dict[str, Any]:
         return {"date": None, "age_days": None, "note": why}
     try:
         when = date if isinstance(date, datetime) else datetime.fromisoformat(str(date))
-    except ValueError:
+        if when.tzinfo is None:
+            when = when.replace(tzinfo=UTC)
+        age_days = round((now - when.timestamp()) / 86400, 1)
+    except (ValueError, OverflowError, OSError):
         return {"date": str(date), "age_days": None, "note": "date not understood"}
-    if when.tzinfo is None:
-        when = when.replace(tzinfo=UTC)
-    return {"date": when.isoformat(timespec="seconds"), "age_days": round((now - when.timestamp()) / 86400, 1),
-            "note": None}
+    return {"date": when.isoformat(timespec="seconds"), "age_days": age_days, "note": None}
 
 
 # --- private ------------------------------------------------------------------------------------
 
 
-def _service(source: StateSource, now: float) -> dict[str, Any]:
-    view = source.service()
+def _service(view: ServiceView, now: float) -> dict[str, Any]:
     if view.error is not None:
         return {"running": False, "reason": view.error.message, "error": view.error.as_dict(), "state": None}
     status = view.status
@@ -77,15 +80,29 @@ def _journal(source: StateSource) -> dict[str, Any]:
     try:
         with source.journal() as journal:
             counter = journal.cycle_counter()
-            rows = journal.last_cycles(1)
+            # the newest cycle, also when its row cannot be read (it says so)
+            rows, notes = ([read_cycle(journal, counter)], []) if counter and journal.has_cycle(counter) else \
+                find_rows(journal, CycleQuery(limit=1))
     except MonoguideError as error:
-        return {"error": error.as_dict(), "cycle_counter": None, "last": None}
+        return {"error": error.as_dict(), "cycle_counter": None, "last": None, "notes": []}
     last = None
     if rows:
         row = rows[0]
-        result = row.result or {}
         last = {"number": row.number, "status": row.status, "error_code": row.error_code, "plc_code": row.plc_code,
                 "error_message": row.error_message, "meaning": meaning(row.error_code),
                 "finished_at": row.finished_at, "job": row.job, "part_tag": row.part_tag,
-                "offset": result.get("base_offset_xyzabc"), "rms_px": result.get("rms_px")}
-    return {"error": None, "cycle_counter": counter, "last": last}
+                "offset": row.offset, "rms_px": row.rms_px, "unreadable": list(row.unreadable)}
+    return {"error": None, "cycle_counter": counter, "last": last, "notes": notes}
+
+
+def _plain(value: Any, depth: int = 0) -> Any:
+    """``value`` as JSON takes it: a float that is not finite (a status file may hold NaN) null, keys text."""
+    if depth > MAX_DEPTH:
+        return None
+    if isinstance(value, float):
+        return finite(value, float("inf"))
+    if isinstance(value, dict):
+        return {str(k): _plain(v, depth + 1) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v, depth + 1) for v in value]
+    return value

@@ -12,8 +12,9 @@ from typing import Any
 import numpy as np
 
 from monoguide.daemon import figures
-from monoguide.daemon.service import CycleQuery, Journal, JournalRow
+from monoguide.daemon.service import CycleQuery, Journal
 from monoguide.daemon.web._cycles import BadQuery
+from monoguide.daemon.web._rows import CycleRow, find_rows
 
 CHARTS = ("offset", "quality", "errors")
 DEFAULT_LAST, MAX_LAST = 500, 5000
@@ -47,22 +48,25 @@ def trend_window(params: dict[str, str]) -> TrendWindow:
     return TrendWindow(int(last_text) if last_text else DEFAULT_LAST, hours)
 
 
-def trend_rows(journal: Journal, window: TrendWindow, now: float) -> list[JournalRow]:
-    """The window's cycles, oldest first (pages of the journal's query, newest down)."""
+def trend_rows(journal: Journal, window: TrendWindow, now: float) -> tuple[list[CycleRow], list[str]]:
+    """The window's cycles, oldest first (pages of the journal's query, newest down), and what of them could not be
+    read."""
     since = None if window.hours is None else now - window.hours * 3600.0
-    rows: list[JournalRow] = []
+    rows: list[CycleRow] = []
+    notes: list[str] = []
     before = 0
     while len(rows) < window.last:
         asked = CycleQuery(finished_from=since, before=before, limit=min(500, window.last - len(rows)))
-        page = journal.find_cycles(asked)
+        page, missed = find_rows(journal, asked)
         rows += page
-        if len(page) < 500 or not page:
+        notes += missed
+        if len(page) < asked.limit or not page:
             break
         before = page[-1].number
-    return rows[::-1]
+    return rows[::-1], notes
 
 
-def chart_png(name: str, rows: list[JournalRow]) -> bytes:
+def chart_png(name: str, rows: list[CycleRow]) -> bytes:
     """Chart ``name`` (one of :data:`CHARTS`) of ``rows`` as PNG bytes."""
     draw = {"offset": _offset, "quality": _quality, "errors": _errors}[name]
     figure = figures.new_figure(SIZE_PX)
@@ -75,7 +79,8 @@ def chart_png(name: str, rows: list[JournalRow]) -> bytes:
 # --- private ------------------------------------------------------------------------------------
 
 
-def _series(rows: list[JournalRow], pick: Any) -> tuple[np.ndarray, np.ndarray]:
+def _series(rows: list[CycleRow], pick: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The cycles with a value (the rows' values are finite, within ``_rows.MAX_VALUE``)."""
     x, y = [], []
     for row in rows:
         value = pick(row)
@@ -86,11 +91,10 @@ def _series(rows: list[JournalRow], pick: Any) -> tuple[np.ndarray, np.ndarray]:
 
 
 @figures.draw_style
-def _offset(figure: Any, rows: list[JournalRow]) -> None:
+def _offset(figure: Any, rows: list[CycleRow]) -> None:
     mm, deg = figure.subplots(2, 1, sharex=True)
     for k, (axis, ax) in enumerate(zip("xyzabc", [mm] * 3 + [deg] * 3, strict=True)):
-        x, y = _series(rows, lambda r, k=k: (r.result or {}).get("base_offset_xyzabc", [None] * 6)[k]
-                       if (r.result or {}).get("base_offset_xyzabc") else None)
+        x, y = _series(rows, lambda r, k=k: None if r.offset is None else r.offset[k])
         ax.plot(x, y, ".-", markersize=3, linewidth=0.8, color=figures.SERIES[k % 3], label=axis)
     mm.set_ylabel("x y z, mm")
     deg.set_ylabel("a b c, deg")
@@ -101,20 +105,19 @@ def _offset(figure: Any, rows: list[JournalRow]) -> None:
 
 
 @figures.draw_style
-def _quality(figure: Any, rows: list[JournalRow]) -> None:
+def _quality(figure: Any, rows: list[CycleRow]) -> None:
     axes = figure.subplots(2, 2, sharex=True).ravel()
     panels = [
-        ("reprojection RMS, px", lambda r: (r.result or {}).get("rms_px")),
-        ("chi-square", lambda r: ((r.result or {}).get("consistency") or {}).get("chi2")),
-        ("predicted sigma, mm (grasp point) / deg x10", lambda r: (r.result or {}).get("sigma_trans_mm")),
-        ("cycle time, s", lambda r: r.timings_s.get("cycle")),
+        ("reprojection RMS, px", lambda r: r.rms_px),
+        ("chi-square", lambda r: r.chi2),
+        ("predicted sigma, mm (grasp point) / deg x10", lambda r: r.sigma_mm),
+        ("cycle time, s", lambda r: r.cycle_s),
     ]
     for k, (ax, (title, pick)) in enumerate(zip(axes, panels, strict=True)):
         x, y = _series(rows, pick)
         ax.plot(x, y, ".-", markersize=3, linewidth=0.8, color=figures.MM if k == 2 else figures.SERIES[k])
         ax.set_title(title)
-    x, y = _series(rows, lambda r: None if (r.result or {}).get("sigma_rot_deg") is None
-                   else 10 * r.result["sigma_rot_deg"])  # type: ignore[index]
+    x, y = _series(rows, lambda r: None if r.sigma_deg is None else 10 * r.sigma_deg)
     axes[2].plot(x, y, ".-", markersize=3, linewidth=0.8, color=figures.DEG, label="sigma rotation x10, deg")
     axes[2].plot([], [], ".-", color=figures.MM, label="sigma position, mm")
     figures.legend(axes[2])
@@ -123,17 +126,17 @@ def _quality(figure: Any, rows: list[JournalRow]) -> None:
 
 
 @figures.draw_style
-def _errors(figure: Any, rows: list[JournalRow]) -> None:
+def _errors(figure: Any, rows: list[CycleRow]) -> None:
     ax = figure.subplots()
-    failed = [r for r in rows if r.status == "error"]
+    failed = [r for r in rows if r.failed]
     ax.set_title(f"errors by code: {len(failed)} of {len(rows)} cycles")
     if not rows:
         return
     bins = np.linspace(rows[0].number, rows[-1].number + 1, min(40, len(rows)) + 1)
-    codes = [code for code, _ in Counter(r.error_code for r in failed).most_common()]
+    codes = [code for code, _ in Counter(r.error_code or "unknown" for r in failed).most_common()]
     bottom = np.zeros(len(bins) - 1)
     for k, code in enumerate(codes):
-        counts, _ = np.histogram([r.number for r in failed if r.error_code == code], bins)
+        counts, _ = np.histogram([r.number for r in failed if (r.error_code or "unknown") == code], bins)
         ax.bar(bins[:-1], counts, width=np.diff(bins), align="edge", bottom=bottom, label=code,
                color=figures.SERIES[k % len(figures.SERIES)])
         bottom += counts

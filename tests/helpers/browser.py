@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -78,3 +79,17 @@ def screen_point(driver: Any, image: Any, width: int, height: int, u: float, v: 
                 r.top + (arguments[2] + 0.5) / arguments[4] * r.height];
     """, image, u, v, width, height)
     return round(x), round(y)
+
+
+def wait_images(driver: Any, timeout_s: float = 20.0) -> None:
+    """Until every <image> of the page has loaded (an SVG image has no `complete`: its bytes arrived)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        urls = driver.execute_script(
+            "return Array.from(document.querySelectorAll('svg image')).map(i => i.href.animVal)")
+        done = driver.execute_script("return performance.getEntriesByType('resource').map(e => e.name)")
+        if all(any(d.endswith(u) for d in done) for u in urls):
+            time.sleep(0.3)  # decoded and painted
+            return
+        time.sleep(0.1)
+    pytest.fail("the page's images did not load")

@@ -38,7 +38,7 @@
     if (last) {
       const a = document.createElement("a"); a.id = "last-link"; a.href = "/cycles/" + last.number; a.textContent = "cycle " + last.number;
       const st = document.createElement("span"); st.id = "last-status"; st.className = last.status === "ok" ? "ok" : "bad";
-      st.textContent = last.status === "ok" ? "ok" : last.error_code + " (" + last.plc_code + ")";
+      st.textContent = last.status === "ok" ? "ok" : (last.error_code || "no error code") + " (" + (last.plc_code == null ? "-" : last.plc_code) + ")";
       let rest = " finished " + when(last.finished_at);
       if (last.job != null) { rest += ", job " + last.job; }
       if (last.part_tag != null) { rest += ", part tag " + last.part_tag; }
@@ -48,7 +48,10 @@
     text("last-meaning", last && last.meaning ? last.meaning : "");
     text("last-offset", last && last.offset ? "base offset x y z mm, a b c deg: " + last.offset.map((v) => v.toFixed(2)).join(" ") +
       "; RMS " + (last.rms_px == null ? "-" : last.rms_px.toFixed(3)) + " px" : "");
+    text("last-unreadable", last && last.unreadable && last.unreadable.length ? "not shown: " + last.unreadable.join("; ") : "");
     text("counter", j.cycle_counter == null ? "-" : j.cycle_counter);
+    const health = byId("health");
+    if (health && f.health) { health.className = "health-" + (f.health.level || "none"); text("health", f.health.summary); }
     text("journal-state", j.error ? j.error.code + " " + j.error.message : "readable");
     text("refreshed", "last " + new Date().toLocaleTimeString());
   }

@@ -15,7 +15,7 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-from helpers.browser import chromium, image_pixel_under, save_screenshot, screen_point
+from helpers.browser import chromium, image_pixel_under, save_screenshot, screen_point, wait_images
 from helpers.repository import EXAMPLE_RECORD, SIM_CELL
 from helpers.web_pages import HOLE_RADIUS_PX, Prepared, prepare_state, web_process
 
@@ -41,25 +41,11 @@ def _open(driver: Any, path: str) -> None:
     driver.get(f"http://{HOST}:{PORT}{path}")
 
 
-def _wait_images(driver: Any) -> None:
-    """Until every <image> of the page has loaded (an SVG image has no `complete`: its bytes arrived)."""
-    deadline = time.monotonic() + 20
-    while time.monotonic() < deadline:
-        urls = driver.execute_script(
-            "return Array.from(document.querySelectorAll('svg image')).map(i => i.href.animVal)")
-        done = driver.execute_script("return performance.getEntriesByType('resource').map(e => e.name)")
-        if all(any(d.endswith(u) for d in done) for u in urls):
-            time.sleep(0.3)  # decoded and painted
-            return
-        time.sleep(0.1)
-    pytest.fail("the page's images did not load")
-
-
 def test_each_centre_is_drawn_where_the_journal_says(page: tuple[Prepared, Any, Path]) -> None:
     prepared, driver, shots = page
     n = prepared.ok[2]
     _open(driver, f"/cycles/{n}")
-    _wait_images(driver)
+    wait_images(driver)
     from selenium.webdriver.common.by import By
 
     checked = 0
@@ -85,7 +71,7 @@ def test_the_mark_lies_on_the_dark_hole_of_the_image(page: tuple[Prepared, Any, 
     prepared, driver, _ = page
     n = prepared.ok[2]
     _open(driver, f"/cycles/{n}")
-    _wait_images(driver)
+    wait_images(driver)
     driver.execute_script("document.getElementById('view-1').scrollIntoView()")
     time.sleep(0.3)
     from selenium.webdriver.common.by import By

@@ -132,7 +132,7 @@ def test_now_json_has_the_counter_and_the_last_cycle(prepared: Prepared) -> None
     assert facts["journal"]["cycle_counter"] == newest
     assert facts["journal"]["last"]["number"] == newest
     assert facts["service"]["state"] is None and "no status file" in facts["service"]["reason"]
-    assert facts["health"].startswith("not available")
+    assert facts["health"]["level"] is None and facts["health"]["summary"].startswith("not available")
 
 
 def test_trends_and_calibration_pages_answer(prepared: Prepared) -> None:
