@@ -31,8 +31,8 @@ from monoguide.daemon.cli._policy import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail
 from monoguide.daemon.cli.journal import open_journal
 from monoguide.daemon.config import load_cell_config
 from monoguide.daemon.errors import NoJournal
-from monoguide.daemon.service import STATE_DIR_HELP, existing_state_dir
-from monoguide.daemon.service._health import HEALTH_FILE, request_clear
+from monoguide.daemon.service import HEALTH_FILE, STATE_DIR_HELP, existing_state_dir
+from monoguide.daemon.service._health import request_clear
 from monoguide.drivers.errors import ConfigError
 from monoguide.solver.errors import MonoguideError
 from monoguide.solver.trend import TrendMonitor

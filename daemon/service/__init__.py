@@ -12,7 +12,9 @@ from typing import Any
 from monoguide.daemon.service._journal import JOURNAL_FILE, CycleEntry, CycleQuery, Journal, JournalRow, OffsetIntent
 from monoguide.daemon.service._journal_query import MAX_PAGE
 from monoguide.daemon.service._state_dir import (
+    CLEAR_REQUEST,
     DEFAULT_STATE_DIR,
+    HEALTH_FILE,
     STATE_DIR_HELP,
     ServiceLock,
     create_state_dir,
@@ -29,7 +31,8 @@ from monoguide.daemon.service._status import (
 )
 
 __all__ = [
-    "DEFAULT_STATE_DIR", "JOURNAL_FILE", "MAX_PAGE", "STATE_DIR_HELP", "STATUS_FILE", "CellDevices", "CycleEntry",
+    "CLEAR_REQUEST", "DEFAULT_STATE_DIR", "HEALTH_FILE", "JOURNAL_FILE", "MAX_PAGE", "STATE_DIR_HELP", "STATUS_FILE",
+    "CellDevices", "CycleEntry",
     "CycleQuery", "DeviceSlot", "DeviceStatus", "Journal", "JournalRow", "Notifier", "OffsetIntent", "OffsetLedger",
     "ServiceLock", "ServiceStatus", "create_state_dir", "existing_state_dir", "liveness", "read_status", "run_service",
     "state_dir", "watchdog_interval_s", "write_status",

@@ -30,15 +30,14 @@ import numpy as np
 
 from monoguide.daemon.config import CellConfig
 from monoguide.daemon.cycle import Residual
+from monoguide.daemon.service._state_dir import CLEAR_REQUEST, HEALTH_FILE
 from monoguide.drivers.atomic_file import write_atomic
 from monoguide.solver.errors import CalibrationSuspect
 from monoguide.solver.trend import SERVICE_ALARM_ARL0, TrendMonitor, TrendReading
 
 log = logging.getLogger(__name__)
 
-HEALTH_FILE = "calibration-health.json"
 HEALTH_FORMAT = "monoguide.calibration-health/1"
-CLEAR_REQUEST = "calibration-health.clear"  # `monoguide health --clear REASON` leaves it; the service takes it
 
 
 def request_clear(state_dir: Path, reason: str) -> Path:

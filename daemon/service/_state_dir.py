@@ -24,6 +24,8 @@ from monoguide.daemon.errors import StateDirInUse, StateDirInvalid, StateDirMiss
 
 DEFAULT_STATE_DIR = Path("/var/lib/monoguide")
 LOCK_FILE = "service.lock"
+HEALTH_FILE = "calibration-health.json"  # the calibration's health (the service writes it; `monoguide health` reads)
+CLEAR_REQUEST = "calibration-health.clear"  # `monoguide health --clear REASON` leaves it; the service takes it
 STATE_DIR_HELP = "The service's state directory (default: $STATE_DIRECTORY, else /var/lib/monoguide)."
 
 

@@ -19,7 +19,9 @@ import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from monoguide.daemon.config import read_config_text
 from monoguide.daemon.errors import WebCredentialsInvalid
+from monoguide.drivers.errors import ConfigError
 
 SCRYPT_N, SCRYPT_R, SCRYPT_P = 2**14, 8, 1  # ~50 ms and 16 MB a check: the usual interactive cost
 REMEMBERED = 64
@@ -130,10 +132,10 @@ def _read_tokens(path: Path) -> tuple[str, ...]:
 
 
 def _lines(path: Path) -> list[tuple[int, str]]:
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise WebCredentialsInvalid(f"{path}: cannot read: {exc}") from None
+    try:  # a regular file under the size limit, as every file monoguide reads (a FIFO would hang the page)
+        text = read_config_text(path, "credentials file")
+    except ConfigError as exc:
+        raise WebCredentialsInvalid(f"{path}: cannot read: {exc.message}") from None
     return [(n, line.strip()) for n, line in enumerate(text.splitlines(), 1)
             if line.strip() and not line.strip().startswith("#")]
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from monoguide.daemon.service._health import HEALTH_FILE
+from monoguide.daemon.service import HEALTH_FILE
 from monoguide.daemon.web._rows import finite, text, whole
 from monoguide.daemon.web._source import ServiceView, StateSource
 

@@ -100,6 +100,7 @@ def cycle_row(row: JournalRow) -> CycleRow:
             bad.append(f"{name}: {_shown(value)} is not {_WHAT[check]}")
         return checked
 
+    bad.extend(f"{damage}: cannot be read" for damage in row.damaged)
     started = take("started_at", row.started_at, finite)
     finished = take("finished_at", row.finished_at, finite)
     status = row.status if row.status in ("ok", "error") else "error"
@@ -112,7 +113,7 @@ def cycle_row(row: JournalRow) -> CycleRow:
     poses = _listed("poses", row.poses_at_capture, matrix4, bad)
     images = _listed("images", row.image_paths, _path, bad)
     return CycleRow(
-        row.number, started, finished, _duration_s(started, finished), take("job", row.job, _register),
+        row.number, started, finished, take("duration_s", row.duration_s, finite), take("job", row.job, _register),
         take("part_tag", row.part_tag, _register), status, code, take("plc_code", row.plc_code, _register),
         take("error_message", row.error_message, _text), record, result, timings, poses, images,
         take("images_pruned_at", row.images_pruned_at, finite), tuple(bad))
@@ -216,12 +217,6 @@ def text(value: Any, limit: int = 200) -> str | None:
 
 
 # --- private ------------------------------------------------------------------------------------
-
-
-def _duration_s(started: float | None, finished: float | None) -> float | None:
-    # finished - started until the journal keeps the monotonic duration (JournalRow.duration_s): then this is
-    # `return finite(row.duration_s)`
-    return None if started is None or finished is None else finite(finished - started)
 
 
 def _register(value: Any) -> int | None:
