@@ -201,7 +201,7 @@ class Service:
                             inputs.part_tag)
         latch.saw(control)
         if state is State.FAULT and Control.FAULT_RESET in rising:
-            self._fault_reset(now)
+            await self._fault_reset(now)
 
     def _fail_hard(self, error: MonoguideError) -> None:
         """PLC heartbeat lost: FAULT now, or through the running cycle (which must end first)."""
@@ -232,9 +232,10 @@ class Service:
                 f"register 0 (control word) = 0x{int(control):04X}: no RESULT_ACK with TRIGGER low within "
                 f"{self.ack_timeout_s:g} s of DONE (cycle {shown.result.cycle_counter})"))
 
-    def _fault_reset(self, now: float) -> None:
+    async def _fault_reset(self, now: float) -> None:
         """FAULT_RESET's rising edge: FAULT clears when the heartbeat runs, no cycle is ending, every offset the
-        robot may hold is settled, and the journal is still the file the service opened."""
+        robot may hold is settled, the journal is still the file the service opened, and every cycle that ended
+        without its row (a full disk) has it now."""
         why = None
         if self.cycle_task is not None:
             why = "the aborted cycle is still ending"
@@ -247,6 +248,8 @@ class Service:
                 self.journal.check_identity()
             except MonoguideError as exc:
                 why = f"{exc.code}: {exc.message}"
+        if why is None and (uncommitted := await self.report.commit_pending()) is not None:
+            why = f"the journal still cannot take a finished cycle: {uncommitted.code}: {uncommitted.message}"
         if why is None:
             self.machine.fire(Cause.FAULT_RESET, "FAULT_RESET pulsed, PLC heartbeat running")
         else:
@@ -401,6 +404,9 @@ class Service:
             with contextlib.suppress(Exception):
                 await self.cycle_task
         await self.report.finish_housekeeping()
+        if (uncommitted := await self.report.commit_pending()) is not None:
+            log.error("journal: a finished cycle could not be committed before the stop (%s %s); an offset it sent "
+                      "gets its row at the next start", uncommitted.code, uncommitted.message)
         if self.watch_task is not None:
             with contextlib.suppress(Exception):
                 await self.watch_task

@@ -25,7 +25,7 @@ import logging
 from dataclasses import dataclass
 
 from monoguide.daemon.service._journal import CycleEntry, Journal, OffsetIntent
-from monoguide.drivers.errors import RobotCommandRejected, RobotOffsetUnconfirmed
+from monoguide.drivers.errors import DeviceDisconnected, RobotCommandRejected, RobotOffsetUnconfirmed
 from monoguide.drivers.robot import Robot
 from monoguide.solver.errors import MonoguideError
 
@@ -49,6 +49,7 @@ class OffsetLedger:
     def __init__(self, journal: Journal) -> None:
         self.journal = journal
         self.unsettled: list[OffsetIntent] = journal.unsettled_intents()
+        self.unrecorded: list[tuple[int, str, str, bool]] = []  # settled with the robot, not yet in the journal
 
     # --- at start -------------------------------------------------------------------------------------
 
@@ -118,14 +119,20 @@ class OffsetLedger:
         """The outcome committed with a good cycle's row."""
         return "acknowledged", f"request {sequence} acknowledged with status 0"
 
-    def clear_unreported(self, robot: Robot, cycle: int, why: str) -> bool:
+    def clear_unreported(self, robot: Robot | None, cycle: int, why: str) -> bool:
         """A good cycle whose result could not be reported (journal or PLC): clear the robot's offset, so it
-        holds nothing the PLC was not told about. True when cleared (and journaled where the journal can)."""
+        holds nothing the PLC was not told about. True when cleared (and journaled where the journal can); when it
+        cannot be cleared now (the robot lost too), the offset is unsettled: FAULT 429 until it is."""
         try:
+            if robot is None:
+                raise DeviceDisconnected("robot: not connected")
             robot.clear_offset()
         except MonoguideError as exc:
-            log.error("cycle %d: the robot holds its offset but the PLC was not told (%s); clearing it failed: %s %s",
-                      cycle, why, exc.code, exc.message)
+            log.error("cycle %d: the robot holds its offset but the PLC was not told (%s); clearing it failed: %s %s; "
+                      "it is cleared as soon as the robot answers", cycle, why, exc.code, exc.message)
+            intent = self.journal.intent(cycle)
+            if intent is not None and all(i.cycle != cycle for i in self.unsettled):
+                self.unsettled.append(intent)
             return False
         log.warning("cycle %d: offset cleared from the robot: %s", cycle, why)
         self._journal_outcome(cycle, "acknowledged", f"acknowledged, then cleared: {why}", cleared=True)
@@ -156,9 +163,23 @@ class OffsetLedger:
         self._journal_outcome(intent.cycle, "held" if took else "not_held", detail, cleared=True)
         return Settled(intent.cycle, intent.sequence, took, detail)
 
+    def record_pending(self) -> MonoguideError | None:
+        """Record the outcomes the journal could not take when they were settled (a full disk); None when all are
+        recorded, else the journal's error (FAULT_RESET waits for it)."""
+        while self.unrecorded:
+            cycle, outcome, detail, cleared = self.unrecorded[0]
+            try:
+                self.journal.settle_intent(cycle, outcome, detail, cleared=cleared)
+            except MonoguideError as exc:
+                return exc
+            self.unrecorded.pop(0)
+            log.info("journal: the outcome of cycle %d's offset (%s) recorded now", cycle, outcome)
+        return None
+
     def _journal_outcome(self, cycle: int, outcome: str, detail: str, *, cleared: bool) -> None:
         try:
             self.journal.settle_intent(cycle, outcome, detail, cleared=cleared)
-        except MonoguideError as exc:  # the robot's side is settled; the journal keeps the intent open
-            log.error("journal: the outcome of cycle %d's offset (%s) not recorded: %s %s; it is settled again "
-                      "at the next start", cycle, outcome, exc.code, exc.message)
+        except MonoguideError as exc:  # the robot's side is settled; the journal takes it when it can
+            self.unrecorded.append((cycle, outcome, detail, cleared))
+            log.error("journal: the outcome of cycle %d's offset (%s) not recorded: %s %s; recorded before FAULT "
+                      "clears (or settled again at the next start)", cycle, outcome, exc.code, exc.message)

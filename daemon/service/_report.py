@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import logging
 import time
 from pathlib import Path
@@ -37,6 +38,7 @@ class CycleReport:
         self.machine, self.journal, self.ledger, self.devices = machine, journal, ledger, devices
         self.link, self.shown, self.settings = link, shown, settings
         self.housekeeping: asyncio.Task[None] | None = None
+        self.uncommitted: list[tuple[CycleEntry, int | None]] = []  # rows the journal could not take yet
 
     async def report(self, inputs: PlcInputs, triggered_at: float, outcome: Outcome, abort: Abort) -> None:
         machine, error = self.machine, outcome.error
@@ -125,8 +127,8 @@ class CycleReport:
         intent_outcome = None
         if outcome.error is None and outcome.number is not None:
             intent_outcome = ("acknowledged", f"request {outcome.sequence} acknowledged with status 0")
+        entry = journal_entry(outcome, inputs, self.journal.state_dir)
         try:
-            entry = journal_entry(outcome, inputs, self.journal.state_dir)
             outcome.committed = await asyncio.to_thread(self.journal.commit_cycle, entry, outcome.number,
                                                         intent_outcome=intent_outcome)
             return outcome.committed
@@ -134,9 +136,31 @@ class CycleReport:
             if outcome.error is None and outcome.number is not None:
                 await asyncio.to_thread(self.ledger.clear_unreported, self.devices.handle("robot"), outcome.number,
                                         f"the journal could not commit cycle {outcome.number} ({exc.code})")
+                # the PLC is never told this cycle's RESULT_OK: its row, when it can be committed, says why
+                outcome.fail(type(exc)(f"{exc.message}; the cycle's offset was cleared from the robot, its row "
+                                       f"committed once the journal could take it"), State.REPORTING)
+                entry = journal_entry(outcome, inputs, self.journal.state_dir)
+            self.uncommitted.append((entry, outcome.number))
             if self.machine.can(Cause.REPORT_FAILED):
                 self.machine.fire(Cause.REPORT_FAILED, error=exc)
             return None
+
+    async def commit_pending(self) -> MonoguideError | None:
+        """Commit the rows (and offset outcomes) the journal could not take when their cycles ended (a full disk), in
+        order; None once all are in, else the journal's error (FAULT_RESET waits for it: a cycle that reached BUSY
+        is journaled before the next one runs, and its number is never given to another)."""
+        if (unrecorded := await asyncio.to_thread(self.ledger.record_pending)) is not None:
+            return unrecorded
+        while self.uncommitted:
+            entry, number = self.uncommitted[0]
+            try:
+                committed = await asyncio.to_thread(self.journal.commit_cycle, entry, number)
+            except MonoguideError as exc:
+                return exc
+            self.uncommitted.pop(0)
+            self.shown.result = dataclasses.replace(self.shown.result, cycle_counter=committed)
+            log.info("journal: cycle %d committed now (%s)", committed, entry.error.code if entry.error else "ok")
+        return None
 
     async def _unreported(self, error: DeviceError, outcome: Outcome, number: int) -> None:
         """The result registers could not be written: FAULT says why the cycle ended (its own error, else the
@@ -177,6 +201,7 @@ def journal_entry(outcome: Outcome, inputs: PlcInputs, state_dir: Path | None = 
     images = [c.image_path for c in captures if c.image_path is not None]
     if outcome.error is not None:
         images = images or outcome.seen.image_paths()
+    images = [path for path in images if Path(path).is_file()]  # those written (a full disk writes none)
     return CycleEntry(
         started_at=outcome.started_at, finished_at=time.time(), job=inputs.job, part_tag=inputs.part_tag,
         duration_s=time.monotonic() - outcome.started_monotonic,  # a clock step does not change it
@@ -201,7 +226,9 @@ def _failed_result(outcome: Outcome, state_dir: Path | None) -> dict[str, Any]:
                "expected_px": list(at.expected_px) if at is not None and at.expected_px is not None else None}
     views = outcome.seen.views()
     for view in views:
-        if view["image"] is not None and state_dir is not None:
+        if view["image"] is not None and not Path(view["image"]).is_file():
+            view["image"] = None  # not written (a full disk)
+        elif view["image"] is not None and state_dir is not None:
             view["image"] = _relative(view["image"], state_dir)
     solved = getattr(outcome.solution, "result", None)  # refused after the solve: the pose that was refused
     result: dict[str, Any] = {**(solved or {}), "status": "error", "failure": failure, "views": views}

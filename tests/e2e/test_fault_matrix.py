@@ -284,13 +284,7 @@ async def kill_9_awaiting_the_robots_ack(cell: Cell) -> Seen:
     offsets = len(cell.robot().get("offsets", []))
     number = _journal_counter(cell) + 1
     await cell.trigger()
-    deadline = time.monotonic() + CYCLE_S
-    while True:  # the intent is committed just before the offset goes to the controller
-        with Journal(cell.state_dir, read_only=True) as journal:
-            if journal.intent(number) is not None:
-                break
-        assert time.monotonic() < deadline, "the offset was never sent"
-        await asyncio.sleep(0.01)
+    await _offset_sent(cell, number)
     await asyncio.sleep(0.3)  # sent, and not acknowledged (no-ack)
     assert cell.service is not None
     cell.service.kill()
@@ -323,7 +317,7 @@ def calibration_fault(command: str, clear: str) -> Callable[[Cell], Awaitable[Se
 
 async def disk_full_at_the_intent(cell: Cell) -> Seen:
     """The state directory's disk full: the offset's intent cannot be committed, so nothing is sent; FAULT names the
-    journal; space freed, FAULT_RESET clears it."""
+    journal; space freed, FAULT_RESET commits the cycle's row and clears it."""
     await cell.ready()
     filler = fill(cell.state_dir)
     try:
@@ -332,6 +326,35 @@ async def disk_full_at_the_intent(cell: Cell) -> Seen:
     finally:
         filler.unlink()
     return seen
+
+
+async def disk_full_while_reporting(cell: Cell) -> Seen:
+    """The disk fills while the robot is asked for its ack (no-ack): the write fails and is settled with the robot
+    (it holds nothing), then the cycle's row cannot be committed: FAULT names the journal, nothing is held; space
+    freed, FAULT_RESET commits the cycle's row and the offset's outcome, and clears it."""
+    await cell.ready()
+    await cell.sim_command("robot no-ack")
+    number = _journal_counter(cell) + 1
+    await cell.trigger()
+    await _offset_sent(cell, number)
+    filler = fill(cell.state_dir)
+    try:
+        seen = await cell.end()
+    finally:
+        filler.unlink()
+        await cell.sim_command("robot none")
+    return seen
+
+
+async def _offset_sent(cell: Cell, number: int) -> None:
+    """Until cycle ``number``'s offset intent is committed (just before the offset goes to the controller)."""
+    deadline = time.monotonic() + CYCLE_S
+    while True:
+        with Journal(cell.state_dir, read_only=True) as journal:
+            if journal.intent(number) is not None:
+                return
+        assert time.monotonic() < deadline, "the offset was never sent"
+        await asyncio.sleep(0.01)
 
 
 async def journal_deleted_while_idle(cell: Cell) -> Seen:
@@ -400,7 +423,10 @@ ROWS: tuple[Row, ...] = (
     Row("calibration camera bump 1 deg", "solving", calibration_fault("camera bump 1 0", "camera bump 0 0"),
         frozenset({"CALIBRATION_SUSPECT", "INCONSISTENT_MEASUREMENT", "RESIDUAL_TOO_LARGE", "HOLE_NOT_FOUND",
                    "OFFSET_OUT_OF_ENVELOPE"}), images=True),
-    Row("disk full", "writing the offset", disk_full_at_the_intent, plc_codes=frozenset({620}), latches=True),
+    Row("disk full", "writing the offset", disk_full_at_the_intent, frozenset({"JOURNAL_ERROR"}),
+        plc_codes=frozenset({620}), latches=True),
+    Row("disk full", "reporting", disk_full_while_reporting, frozenset({"ROBOT_ACK_TIMEOUT"}),
+        plc_codes=frozenset({620}), latches=True, images=True),
     Row("journal deleted", "idle", journal_deleted_while_idle, plc_codes=frozenset({625}), latches=True),
 )
 
@@ -465,14 +491,17 @@ async def _play(cell: Cell, row: Row) -> tuple[Row, Seen, list[str]]:
         seen = await row.play(cell)
     except AssertionError as exc:
         return row, Seen(notes=[f"play: {exc}"]), [f"the row did not play: {exc}"]
-    _check_cycle(cell, row, seen, before, problems)
     if cell.service is not None and cell.level_mb is not None:
         seen.notes.append(f"rss after the fault {cell.rss_mb():.0f} MB")
         if os.environ.get("MONOGUIDE_FAULT_MATRIX_RSS"):
             status = Path(f"/proc/{cell.service.pid}/status").read_text().splitlines()
             seen.notes.append(" ".join(x.replace("\t", "").replace(" kB", "") for x in status if x.startswith("Rss")))
     try:
-        await cell.ready()
+        await cell.ready()  # FAULT_RESET where it latched: the journal takes what it could not before
+    except AssertionError as exc:
+        problems.append(f"no READY: {exc}")
+    _check_cycle(cell, row, seen, before, problems)
+    try:
         if cell.level_mb is None:  # restarted: its level anew
             await _level(cell)
         else:
@@ -502,7 +531,7 @@ def _check_cycle(cell: Cell, row: Row, seen: Seen, before: int, problems: list[s
         seen.row_code, seen.stage = journaled.error_code, ((journaled.result or {}).get("failure") or {}).get("stage")
         if journaled.error_code not in row.codes:
             problems.append(f"journaled {journaled.error_code}, expected one of {sorted(row.codes)}")
-        if seen.counter is not None and seen.counter != journaled.number % 65536:
+        if seen.counter is not None and not row.plc_codes and seen.counter != journaled.number % 65536:
             problems.append(f"register 13 = {seen.counter}, the journal's row is {journaled.number}")
         if seen.error_code != journaled.plc_code and not (row.latches and row.plc_codes):
             problems.append(f"register 11 = {seen.error_code}, the journal's row has {journaled.plc_code}")

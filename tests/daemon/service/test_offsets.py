@@ -203,21 +203,25 @@ async def test_a_full_disk_means_nothing_is_sent_and_the_plc_is_told(tmp_path: P
             await line.wait(lambda s: Status.DONE in s, "DONE")
             await line.acknowledge()  # cycle 1, before the disk fills: good
             filler = fill(disk)
-            for tag in (2, 3):  # FAULT_RESET, the next part: nothing reaches the robot, every time
-                await _trigger(line, tag)
-                status = await line.wait(lambda s: Status.FAULT in s, "FAULT")
-                assert not status & (Status.DONE | Status.RESULT_OK)
-                out = await line.outputs()
-                assert (out.result.error_code, out.result.cycle_counter) == (JournalError.plc_code, 1)
-                await _fault_reset(line)
+            await _trigger(line, 2)  # nothing reaches the robot; the cycle's row cannot be committed either
+            status = await line.wait(lambda s: Status.FAULT in s, "FAULT")
+            assert not status & (Status.DONE | Status.RESULT_OK)
+            out = await line.outputs()
+            assert (out.result.error_code, out.result.cycle_counter) == (JournalError.plc_code, 1)
+            await _fault_reset(line)  # ignored: the journal still cannot take the cycle that ended
+            await asyncio.sleep(0.3)
+            assert Status.FAULT in await line.status()
             assert stand_in.written == [OFFSET]  # only cycle 1's offset ever reached the robot
-            filler.unlink()  # room again: the line runs on
+            filler.unlink()  # room again: FAULT_RESET journals cycle 2, and the line runs on
             await _fault_reset(line)
             await _trigger(line, 4)
             assert await line.wait(lambda s: Status.DONE in s, "DONE") == Status.DONE | Status.RESULT_OK
-            assert (await line.outputs()).result.cycle_counter == 2
+            assert (await line.outputs()).result.cycle_counter == 3
             await line.acknowledge()
-        assert [(i.cycle, i.outcome) for i in _intents(disk / "state")] == [(1, "acknowledged"), (2, "acknowledged")]
+        assert [(i.cycle, i.outcome) for i in _intents(disk / "state")] == [(1, "acknowledged"), (3, "acknowledged")]
+        with Journal(disk / "state") as journal:
+            failed = journal.cycle(2)
+        assert (failed.error_code, failed.part_tag) == ("JOURNAL_ERROR", 2)  # journaled once the disk had room
 
 
 # --- a write that fails after the send is settled ----------------------------------------------------------------
