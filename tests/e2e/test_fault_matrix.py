@@ -232,29 +232,26 @@ async def heartbeat_stops_while_idle(cell: Cell) -> Seen:
 
 
 async def heartbeat_stops_awaiting_the_acknowledgement(cell: Cell) -> Seen:
-    await cell.ready()
-    await cell.trigger()
-    done = await cell.end()
-    assert done.status == Status.DONE | Status.RESULT_OK, done
-    await cell.line.control(Control.TRIGGER)  # DONE read, not acknowledged; the heartbeat stops
-    cell.line.beating = False
-    try:
-        await cell.line.wait(lambda s: Status.FAULT in s, "FAULT", 10.0)
-    finally:
-        cell.line.beating = True
-    _note_reported(cell)
-    seen = await cell.end()
-    await cell.line.control(0)
-    return seen
+    return await _unacknowledged(cell, stop_heartbeat=True)
 
 
 async def no_acknowledgement(cell: Cell) -> Seen:
+    return await _unacknowledged(cell, stop_heartbeat=False)
+
+
+async def _unacknowledged(cell: Cell, stop_heartbeat: bool) -> Seen:
+    """A good cycle's DONE + RESULT_OK read and never acknowledged (TRIGGER kept high): FAULT after the PLC's
+    acknowledgement timeout — or, with the heartbeat stopped meanwhile, after the heartbeat's."""
     await cell.ready()
     await cell.trigger()
     done = await cell.end()
     assert done.status == Status.DONE | Status.RESULT_OK, done
     _note_reported(cell)
-    await cell.line.wait(lambda s: Status.FAULT in s, "FAULT after no acknowledgement", 15.0)
+    cell.line.beating = not stop_heartbeat
+    try:
+        await cell.line.wait(lambda s: Status.FAULT in s, "FAULT", 15.0)
+    finally:
+        cell.line.beating = True
     seen = await cell.end()
     await cell.line.control(0)
     return seen
