@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from monoguide.daemon.cycle._memory import trim_malloc, tune_malloc
 from monoguide.daemon.cycle._residual import Residual
 from monoguide.daemon.cycle._seen import FailedAt, Sought, ViewsSeen, wait_images
 from monoguide.daemon.cycle._states import CYCLE_STATES, ERROR_CAUSES, TRANSITIONS, Cause, CycleStateMachine, State
@@ -15,7 +16,7 @@ from monoguide.daemon.cycle._states import CYCLE_STATES, ERROR_CAUSES, TRANSITIO
 __all__ = ["CYCLE_STATES", "ERROR_CAUSES", "TRANSITIONS", "Cause", "CycleRunner", "CycleStateMachine", "FailedAt",
            "Residual", "Sought", "State", "ViewsSeen", "trim_malloc", "tune_malloc",
            "wait_images"]
-_RUNNER = ("CycleRunner", "trim_malloc", "tune_malloc")
+_RUNNER = ("CycleRunner",)
 
 
 def __getattr__(name: str) -> Any:
