@@ -17,7 +17,7 @@ PREVIOUS = json.loads((Path(__file__).parent / "data" / "cli_surface_0.1.0.json"
 ADDED = {  # a new command (all of it), new options of a command
     "init": None, "web": None, "plant": None, "health": None, "check": None, "run": {"clear_status"},
     "sim-cell": {"part_types"},
-    "simulate": {"jobs", "web", "marks"}, "journal list": {"job"}, "calibrate": {"job"},
+    "simulate": {"jobs", "web", "marks", "fail_every"}, "journal list": {"job"}, "calibrate": {"job"},
 }
 
 
