@@ -141,6 +141,7 @@ class FaultInjector:
                  fail_every: int = 0) -> None:
         self._send, self._note, self._clear_latch = send, note, clear_latch
         self._schedule = _schedule(total, plan)
+        self._total = total
         self._fail_every = fail_every  # also one part in this many fails (PERIODIC_FAILURES); 0: none
         self._heartbeat_timeout_s = heartbeat_timeout_s
         # (command, at monotonic time; None: after its parts, how many are left)
@@ -172,10 +173,11 @@ class FaultInjector:
             self._clear = (f"{device} none", None, 1)
 
     def _fail_periodically(self, done: int) -> None:
-        """Part ``done + 1`` is one in ``fail_every``: a one-grab camera failure (none while another fault is on)."""
-        if not self._fail_every or (done + 1) % self._fail_every or self._clear is not None:
+        """Part ``done + 1`` is one in ``fail_every``: a one-grab camera failure (none while another fault is on, nor
+        on the last part: a good one follows each failure, so that READY after it is seen)."""
+        if not self._fail_every or (done + 1) % self._fail_every or self._clear is not None or done + 1 >= self._total:
             return
-        device, name, expected = PERIODIC_FAILURES[(done + 1) // self._fail_every % len(PERIODIC_FAILURES)]
+        device, name, expected = PERIODIC_FAILURES[((done + 1) // self._fail_every - 1) % len(PERIODIC_FAILURES)]
         self._send(f"{device} {name} 1")
         self.injected.append(InjectedFault(done + 1, device, name, expected))
 

@@ -251,3 +251,29 @@ def test_simulate_refuses_a_pose_drift_of_a_pose_the_cell_lacks_before_it_starts
     with pytest.raises(ConfigError, match=r"pose number 9: the cell .* has measuring poses 1 to 7"):
         run_simulation(options)
     assert not (tmp_path / "sim-cell.log").exists()  # nothing started
+
+
+def test_fail_every_fails_one_part_in_n_in_turn_but_not_the_last_nor_beside_a_fault() -> None:
+    """``simulate --fail-every N``: parts N, 2N, ... meet a one-grab camera failure, black and occluded in turn; never
+    the last part (a good one follows each, so READY after it is seen), never a part a scheduled fault has."""
+    sent: list[tuple[int, str]] = []
+    done = 0
+    injector = FaultInjector(lambda line: sent.append((done, line)), 10, (), 2.0, lambda _: None, fail_every=3)
+    for done in range(10):
+        injector.before_part(done, 0.0)
+        injector.part_done()
+    assert sent == [(2, "camera black 1"), (5, "camera occluded 1"), (8, "camera black 1")]
+    assert [f.cycle for f in injector.injected] == [3, 6, 9]
+    sent.clear()
+    injector = FaultInjector(lambda line: sent.append((done, line)), 9, (), 2.0, lambda _: None, fail_every=3)
+    for done in range(9):
+        injector.before_part(done, 0.0)
+        injector.part_done()
+    assert [line for _, line in sent] == ["camera black 1", "camera occluded 1"]  # part 9, the last, is good
+    sent.clear()
+    injector = FaultInjector(lambda line: sent.append((done, line)), 6, fault_plan(("robot stall",)), 2.0,
+                             lambda _: None, fail_every=2)
+    for done in range(6):
+        injector.before_part(done, 0.0)
+        injector.part_done()
+    assert [(f.cycle, f.label) for f in injector.injected] == [(2, "robot stall"), (4, "camera occluded")]
