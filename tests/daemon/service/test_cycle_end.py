@@ -5,9 +5,13 @@ the real devices' failure paths are in test_run_on_sim_cell.py and the fault mat
 from __future__ import annotations
 
 import asyncio
+import gc
+import time
+import weakref
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from helpers.cell_configs import plc_cell_config
 from helpers.plc_line import WAIT_S, in_own_event_loop, plc_line, record_status_writes
@@ -17,6 +21,7 @@ from monoguide.daemon.config import load_cell_config
 from monoguide.daemon.errors import CycleAborted, CycleUnexpected
 from monoguide.daemon.service import CellDevices, Journal, run_service
 from monoguide.drivers.plc_registers import CYCLE_COUNTER, Control, Status
+from monoguide.solver.errors import HoleNotFound
 
 
 class Broken(StandIn):
@@ -120,3 +125,57 @@ async def test_register_13_shows_the_continued_numbering_from_the_first_ready(tm
         finally:
             stop.set()
             await asyncio.wait_for(service, WAIT_S)
+
+
+class HoldsAFrame(StandIn):
+    """Measures with a frame-sized array in hand and refuses the hole (what the hole finder's frames hold when it
+    raises); ``frame`` a weak reference to that array, to see when it is freed."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.release.set()
+        self.frame: Any = None
+
+    def measure(self, job: int, abort: Any, abort_error: Any, holes: bool = True, seen: Any = None) -> Any:
+        image = np.zeros((2048, 2448), np.float32)  # a 5 MP frame's grey copy, 20 MB
+        self.frame = weakref.ref(image)
+        raise HoleNotFound(f"S1, P1: hole expected at (1224.0, 1024.0) r=17.5 px: no hole (frame {image.shape})")
+
+
+@in_own_event_loop
+async def test_a_failed_cycle_keeps_no_frame_once_it_is_reported(tmp_path: Path) -> None:
+    """The error of a failed cycle stays known (the state machine's history, the journal) but not its traceback,
+    whose frames hold the stage's images: once the cycle is reported the frame is freed at once — by reference
+    counting, the garbage collector switched off — as a good cycle's is."""
+    stand_in = HoldsAFrame()
+    gc.disable()
+    try:
+        async with service_on_line(tmp_path, "127.0.5.34", stand_in) as (line, _service, _stop):
+            await line.control(Control.TRIGGER, job=1, tag=51)
+            assert await line.wait(lambda s: Status.DONE in s, "DONE") == Status.DONE | Status.ERROR
+            assert (await line.outputs()).result.error_code == HoleNotFound.plc_code
+            await line.acknowledge()
+            assert stand_in.frame is not None and stand_in.frame() is None, "the failed cycle's frame is still held"
+    finally:
+        gc.enable()
+
+
+@in_own_event_loop
+async def test_a_cycles_duration_is_not_moved_by_a_step_of_the_clock(tmp_path: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """The wall clock steps an hour forward while a cycle measures (NTP, a hand set clock): the journal's start
+    and end are the wall clock's, its duration the monotonic clock's — the cycle's own 0.3 s."""
+    stand_in = StandIn()
+    async with service_on_line(tmp_path, "127.0.5.35", stand_in) as (line, _service, _stop):
+        await line.control(Control.TRIGGER, job=1, tag=61)
+        await line.wait(lambda s: Status.BUSY in s, "BUSY")
+        wall = time.time
+        monkeypatch.setattr(time, "time", lambda: wall() + 3600.0)  # the step, for every reader of time.time
+        await asyncio.sleep(0.3)
+        stand_in.release.set()
+        assert await line.wait(lambda s: Status.DONE in s, "DONE") == Status.DONE | Status.RESULT_OK
+        await line.acknowledge()
+    with Journal(tmp_path / "state") as journal:
+        row = journal.cycle(1)
+    assert row.finished_at - row.started_at > 3600.0  # what the wall clock says
+    assert row.duration_s is not None and 0.3 <= row.duration_s < 5.0, row.duration_s
