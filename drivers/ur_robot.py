@@ -50,6 +50,9 @@ RUNTIME_PLAYING = 2
 POLL_S = 0.01
 
 
+WATCH_STATUS_S = 0.25  # between cycles: how often watch() asks the receive worker (a lost input link: every call)
+
+
 class RtdeChannel:
     """Bytes on the wire: one RTDE message out, one in before a deadline, over a TCP socket."""
 
@@ -207,6 +210,7 @@ class UrRobot(HandshakeRobot):
         self._worker = RtdeReceiveWorker(self.name)
         self._inputs = RtdeInputClient(host, port, connect_timeout_s)
         self._last_timestamp: tuple[float, float] | None = None  # controller's, ours when it last changed
+        self._next_status_watch = 0.0  # watch(): when the receive side is asked next
 
     @property
     def worker_restarts(self) -> int:
@@ -233,12 +237,16 @@ class UrRobot(HandshakeRobot):
         )
 
     def watch(self) -> None:
+        """The input link at every call (a look at its socket, no wait); the receive side (the worker's state, stale
+        data) every :data:`WATCH_STATUS_S`: a question to the worker process costs a millisecond or so."""
         if not self._worker.alive or not self._inputs.is_open:
             raise DeviceDisconnected(f"{self.name}: not connected")
         if self._inputs.closed_by_controller():
             self._inputs.close()
             raise DeviceDisconnected(f"{self.name}: the controller closed the RTDE input connection")
-        self.status()  # both links open: no reconnect; the receive side's loss or stale data raises
+        if (now := time.monotonic()) >= self._next_status_watch:
+            self._next_status_watch = now + WATCH_STATUS_S
+            self.status()  # both links open: no reconnect; the receive side's loss or stale data raises
 
     def close(self) -> None:
         self._inputs.close()

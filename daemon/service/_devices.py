@@ -5,7 +5,7 @@ event loop keeps polling the PLC meanwhile. A device that cannot be opened is re
 delay (:data:`BACKOFF_S`), and each attempt says so in the log (``camera: cannot connect (...);
 reconnecting in 2 s``). A cycle that fails with a lost connection hands its error to :meth:`lost`: the
 device it came from is closed and reopened in the background (the others stay open), and the cell is not
-READY until it is back. Between cycles the robot is asked at every poll whether it still answers
+READY until it is back. Between cycles the robot is asked every 0.1 s whether it still answers
 (:meth:`CellDevices.watch`): a controller lost while the cell waits for a trigger takes READY away at once, not at
 the next trigger.
 """

@@ -47,6 +47,7 @@ STATUS_FILE_PERIOD_S = 1.0  # status.json rewritten at least this often
 LOOP_STALE_S = 2.0  # no poll for this long: the loop is not healthy (no heartbeat, no WATCHDOG=1)
 STOP_GRACE_S = 2.0  # on SIGTERM, how long a reported result waits for the PLC's acknowledgement
 SETTLE_RETRY_S = 2.0  # an unconfirmed offset: how often the robot is asked again while it cannot say
+DEVICE_WATCH_S = 0.1  # between cycles, the devices are asked this often whether they still answer (5 polls)
 
 
 async def run_service(config: CellConfig, state_dir: Path, *, stop: asyncio.Event | None = None,
@@ -106,6 +107,7 @@ class Service:
         self.cycle_task: asyncio.Task[None] | None = None
         self.settle_task: asyncio.Task[None] | None = None
         self.watch_task: asyncio.Task[None] | None = None  # the devices asked between cycles
+        self.next_watch = 0.0
         self.settle_next_try = 0.0
         self.stop_deadline: float | None = None
         self.last_poll = time.monotonic()
@@ -144,7 +146,7 @@ class Service:
         else:
             await self._poll(now)
         self._settle_offsets(now)
-        self._watch_devices()
+        self._watch_devices(now)
         await self._follow()
         return False
 
@@ -302,11 +304,13 @@ class Service:
                               or "plc")
         return ready
 
-    def _watch_devices(self) -> None:
-        """Between cycles, at every poll: ask the devices whether they still answer (one question at a time, never
-        beside a cycle or a settling, which use the robot themselves)."""
+    def _watch_devices(self, now: float) -> None:
+        """Between cycles, every :data:`DEVICE_WATCH_S`: ask the devices whether they still answer (one question at
+        a time, never beside a cycle or a settling, which use the robot themselves)."""
         if (self.machine.state is State.IDLE and self.cycle_task is None and self.settle_task is None
-                and self.stop_deadline is None and (self.watch_task is None or self.watch_task.done())):
+                and self.stop_deadline is None and (self.watch_task is None or self.watch_task.done())
+                and now >= self.next_watch):
+            self.next_watch = now + DEVICE_WATCH_S
             self.watch_task = asyncio.create_task(self.devices.watch())
 
     async def _follow(self) -> None:
