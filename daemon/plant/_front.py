@@ -51,6 +51,7 @@ from monoguide.daemon.plant._wire import (
 log = logging.getLogger(__name__)
 
 RELAY_BYTES = 65536
+BACKLOG = 1024  # connections the kernel holds until accepted: a flood is accepted and refused, not dropped unseen
 Peer = tuple[str, int]
 
 
@@ -74,7 +75,7 @@ class Front:
         self.upstream, self.key = upstream, key
         try:
             self._server = await asyncio.start_server(self._connection, self.host, self.port,
-                                                      limit=RELAY_BYTES, backlog=128)
+                                                      limit=RELAY_BYTES, backlog=BACKLOG)
         except OSError as exc:
             raise PlantListenFailed(f"OPC UA opc.tcp://{self.host}:{self.port}: cannot listen: {exc}") from exc
 
