@@ -54,7 +54,7 @@ class Refusals:
         for (interface, reason), tally in sorted(self._pending.items()):
             busiest = ", ".join(f"{a} ({n})" for a, n in tally.addresses.most_common(ADDRESSES_SHOWN))
             others = len(tally.addresses) - ADDRESSES_SHOWN
-            more = f" and {others} other addresses" if others > 0 else ""
+            more = f" and {others} other address{'es' if others > 1 else ''}" if others > 0 else ""
             log.warning("%s refused %d time%s (%s) from %s%s; at most one line per %g s", interface, tally.count,
                         "" if tally.count == 1 else "s", reason, busiest, more, self.interval_s)
         self._pending.clear()

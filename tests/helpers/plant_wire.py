@@ -201,8 +201,8 @@ def _signature(identity: ClientIdentity, created: ua.CreateSessionResult) -> ua.
     """The X.509 token's proof: the server's certificate and nonce signed with the client's key (RSA-SHA256)."""
     key = serialization.load_pem_private_key(identity.key.read_bytes(), password=None)
     assert isinstance(key, rsa.RSAPrivateKey)
-    server = created.ServerCertificate or b""
-    x509.load_der_x509_certificate(server)  # the server's own (one certificate, no chain)
+    # over a channel without security a server may leave its certificate out of the answer: its endpoints have it
+    server = created.ServerCertificate or next(e.ServerCertificate for e in created.ServerEndpoints)
     signed = key.sign(server + (created.ServerNonce or b""), padding.PKCS1v15(), hashes.SHA256())
     return ua.SignatureData(RSA_SHA256, signed)
 
