@@ -26,14 +26,13 @@ file descriptors (the client's, the relay's to asyncua, asyncua's).
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
-from collections import Counter
 
 from asyncua import ua
 from cryptography.hazmat.primitives.asymmetric import rsa
 
 from monoguide.daemon.errors import PlantListenFailed
+from monoguide.daemon.plant._listener import Listener
 from monoguide.daemon.plant._refusals import Refusals
 from monoguide.daemon.plant._settings import PlantLimits
 from monoguide.daemon.plant._wire import (
@@ -63,9 +62,8 @@ class Front:
         self.upstream: Peer | None = None
         self.key: rsa.RSAPrivateKey | None = None  # the server's: it reads an OpenSecureChannel's mode
         self.clients: dict[Peer, str] = {}  # the relay's socket to asyncua (asyncua's peer name) -> the client's IP
-        self.open: Counter[str] = Counter()  # client IP -> its connections now
-        self._server: asyncio.Server | None = None
-        self._connections: set[asyncio.Task[None]] = set()
+        self.listener = Listener(limits.connections, limits.connections_per_client,
+                                 ("max_connections", "max_connections_per_client"))
 
     def client_of(self, peer: object) -> str | None:
         """The client's IP address behind asyncua's peer ``peer``; None for a connection not made by the relay."""
@@ -74,60 +72,26 @@ class Front:
     async def start(self, upstream: Peer, key: rsa.RSAPrivateKey) -> None:
         self.upstream, self.key = upstream, key
         try:
-            self._server = await asyncio.start_server(self._connection, self.host, self.port,
-                                                      limit=RELAY_BYTES, backlog=BACKLOG)
+            await self.listener.listen(self.host, self.port, self._connection, self._busy, limit=RELAY_BYTES,
+                                       backlog=BACKLOG)
         except OSError as exc:
             raise PlantListenFailed(f"OPC UA opc.tcp://{self.host}:{self.port}: cannot listen: {exc}") from exc
 
     async def stop(self) -> None:
-        if self._server is not None:
-            self._server.close()
-        for task in list(self._connections):
-            task.cancel()
-        if self._connections:
-            await asyncio.wait(self._connections, timeout=5)
-        if self._server is not None:
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._server.wait_closed(), 5)
-            self._server = None
+        await self.listener.stop()
 
     # --- private ------------------------------------------------------------------------------------
 
-    async def _connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        task = asyncio.current_task()
-        assert task is not None
-        self._connections.add(task)
-        peer = writer.get_extra_info("peername")
-        client = str(peer[0]) if isinstance(peer, tuple) else "?"
-        busy = self._busy(client)
-        if busy is not None:
-            self.refusals.refuse("opcua", busy, client)
-            writer.write(error_message(ua.StatusCodes.BadTcpServerTooBusy, busy))
-            writer.close()
-            self._connections.discard(task)
-            return
-        self.open[client] += 1
+    async def _busy(self, writer: asyncio.StreamWriter, client: str, reason: str) -> None:
+        self.refusals.refuse("opcua", reason, client)
+        writer.write(error_message(ua.StatusCodes.BadTcpServerTooBusy, reason))
+
+    async def _connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, client: str) -> None:
         try:
             await self._relay(reader, writer, client)
         except Refused as refused:
             self.refusals.refuse("opcua", refused.reason, client)
-            with contextlib.suppress(OSError):
-                writer.write(error_message(refused.status, refused.reason))
-        except (OSError, asyncio.IncompleteReadError):
-            pass  # the client or asyncua went away
-        finally:
-            self.open[client] -= 1
-            if not self.open[client]:
-                del self.open[client]
-            writer.close()
-            self._connections.discard(task)
-
-    def _busy(self, client: str) -> str | None:
-        if sum(self.open.values()) >= self.limits.connections:
-            return "max_connections reached"
-        if self.open[client] >= self.limits.connections_per_client:
-            return "max_connections_per_client reached"
-        return None
+            writer.write(error_message(refused.status, refused.reason))
 
     async def _relay(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, client: str) -> None:
         hello = await self._chunk(reader, first=True, timeout_s=self.limits.hello_timeout_s, what="no Hello")

@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections import Counter
 
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
 
 from monoguide.daemon.errors import PlantListenFailed
+from monoguide.daemon.plant._listener import Listener
 from monoguide.daemon.plant._logins import LoginGate
 from monoguide.daemon.plant._metrics_access import BasicAuth, MetricsAccess
 from monoguide.daemon.plant._refusals import Refusals
@@ -34,60 +34,27 @@ class MetricsEndpoint:
         self.registry, self.access, self.limits, self.refusals = registry, access, limits, refusals
         self.auth = BasicAuth(access.users) if access.users else None
         self.logins = LoginGate(limits.login_failures, limits.login_window_s)
-        self.open: Counter[str] = Counter()
-        self._server: asyncio.Server | None = None
-        self._connections: set[asyncio.Task[None]] = set()
+        self.listener = Listener(limits.metrics_connections, limits.metrics_connections_per_client,
+                                 ("metrics_max_connections", "metrics_max_connections_per_client"))
 
     async def start(self, host: str, port: int) -> str:
         scheme = "https" if self.access.tls else "http"
+        tls = self.access.ssl_context()
         try:
-            self._server = await asyncio.start_server(
-                self._connection, host, port, limit=HEAD_BYTES, ssl=self.access.ssl_context(),
-                ssl_handshake_timeout=self.limits.metrics_timeout_s if self.access.tls else None, backlog=64)
+            await self.listener.listen(host, port, self._exchange, self._busy, limit=HEAD_BYTES, ssl=tls, backlog=64,
+                                       ssl_handshake_timeout=self.limits.metrics_timeout_s if tls else None)
         except OSError as exc:
             raise PlantListenFailed(f"metrics {scheme}://{host}:{port}{PATH}: cannot listen: {exc}") from exc
         return f"{scheme}://{f'[{host}]' if ':' in host else host}:{port}{PATH}"
 
     async def stop(self) -> None:
-        if self._server is not None:
-            self._server.close()
-        for task in list(self._connections):
-            task.cancel()
-        if self._connections:
-            await asyncio.wait(self._connections, timeout=5)
-        if self._server is not None:
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._server.wait_closed(), 5)
-            self._server = None
+        await self.listener.stop()
 
     # --- private ------------------------------------------------------------------------------------
 
-    async def _connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        task = asyncio.current_task()
-        assert task is not None
-        self._connections.add(task)
-        peer = writer.get_extra_info("peername")
-        client = str(peer[0]) if isinstance(peer, tuple) else "?"
-        try:
-            if sum(self.open.values()) >= self.limits.metrics_connections:
-                self.refusals.refuse("metrics", "metrics_max_connections reached", client)
-                await self._answer(writer, 503, b"503 too many connections\n")
-            elif self.open[client] >= self.limits.metrics_connections_per_client:
-                self.refusals.refuse("metrics", "metrics_max_connections_per_client reached", client)
-                await self._answer(writer, 503, b"503 too many connections from this address\n")
-            else:
-                self.open[client] += 1
-                try:
-                    await self._exchange(reader, writer, client)
-                finally:
-                    self.open[client] -= 1
-                    if not self.open[client]:
-                        del self.open[client]
-        except (OSError, asyncio.IncompleteReadError, asyncio.LimitOverrunError):
-            pass  # the client went away, or sent nothing to answer
-        finally:
-            writer.close()
-            self._connections.discard(task)
+    async def _busy(self, writer: asyncio.StreamWriter, client: str, reason: str) -> None:
+        self.refusals.refuse("metrics", reason, client)
+        await self._answer(writer, 503, b"503 too many connections\n")
 
     async def _exchange(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, client: str) -> None:
         try:
