@@ -57,7 +57,7 @@ class PlantServer(InternalServer):
         self.max_session_timeout_ms = limits.session_timeout_s * 1000.0
         self.max_pending_activation_seconds = limits.activation_timeout_s
         self.max_subscriptions = limits.subscriptions
-        self.max_connections = limits.connections + 1  # the relay's, one each: it refuses beyond first
+        self.max_connections = limits.connections + 1  # one from the relay per client connection it admits
 
     def create_session(self, name: Any, user: User | None = None, external: bool = False) -> InternalSession:
         if not external:
