@@ -42,7 +42,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).parents[1] / "tests"))
 
 from bench_cycle import cheaper_config
-from helpers.plant_cells import PASSWORD, USER, plant_file, seeded_entries
+from helpers.plant_cells import MANY_SESSIONS, PASSWORD, USER, plant_file, seeded_entries
 from helpers.plant_clients import (
     NAMESPACE,
     client_identity,
@@ -97,7 +97,7 @@ def main() -> None:
 async def _cycles(tmp: Path, config_path: Path, cycles: int, block: int, toggle: str) -> None:
     config = cheaper_config(config_path, tmp, 0.05, True, ROBOT_HOST)
     state_dir, clients = _state_dir(tmp)
-    plant, line = start_plant(config, state_dir, plant_file(tmp / "plant.toml", PLANT_HOST, PLANT_PORT),
+    plant, line = start_plant(config, state_dir, plant_file(tmp / "plant.toml", PLANT_HOST, PLANT_PORT, MANY_SESSIONS),
                               tmp / "plant.log")
     url = line.split()[2]
     sim, _ = start_sim_cell(config)

@@ -354,6 +354,14 @@ class PlantListenFailed(MonoguideError):
     plc_code = 681
 
 
+class PlantMetricsAuthRequired(ConfigError):
+    """``monoguide plant``: ``[plant] metrics_host`` other than loopback without both TLS and basic authentication
+    (``[plant.metrics_web]``): the metrics would be open to the plant network in clear text."""
+
+    code = "PLANT_METRICS_AUTH_REQUIRED"
+    plc_code = 682
+
+
 def drop_tracebacks(error: BaseException | None) -> None:
     """Let go of what ``error`` holds through its traceback, and through those of its cause and context: the frames
     of every stage it passed, with their images and arrays (tens of MB for a hole not found). A finished cycle's

@@ -1,19 +1,28 @@
-"""The Prometheus metrics of ``monoguide plant`` (docs/metrics.md), served with prometheus_client on their own port
-(``[plant] metrics_host``, loopback unless configured otherwise) from a registry of their own.
+"""The Prometheus metrics of ``monoguide plant`` (docs/metrics.md), in a registry of their own that
+``_metrics_http`` serves on their own port (``[plant] metrics_host``, loopback unless configured otherwise).
 
-The cycle counters start from the journal's totals when the plant starts (one count by outcome) and count on with
-every cycle it reads, so that they equal the journal's; the histograms observe the cycles finished while it runs.
+Every metric has one unit, Prometheus' base unit, in its name (``_metres``, ``_radians``, ``_seconds``, ``_bytes``;
+``_pixels`` where there is none): the base offset is two metrics, its translation in metres and its rotation in
+radians. No ``_created`` series (prometheus_client's are switched off). The cycle counters start from the journal's
+totals when the plant starts (one count by outcome) and count on with every cycle it reads, so that they equal the
+journal's; the histograms observe the cycles finished while it runs.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from typing import Any
+from collections import Counter as Tally
 
-from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, ProcessCollector, start_http_server
+from prometheus_client import (
+    CollectorRegistry,
+    Counter,
+    Gauge,
+    Histogram,
+    ProcessCollector,
+    disable_created_metrics,
+)
 
-from monoguide.daemon.errors import PlantListenFailed
 from monoguide.daemon.plant._cell_view import CellReading, health_level
 from monoguide.daemon.plant._results import OFFSET_AXES, CycleResult
 from monoguide.daemon.service import STATUS_FILE
@@ -25,8 +34,13 @@ STATES = ("not running", "starting", "idle", "measuring", "solving", "checking",
           "awaiting_ack", "fault", "stopped")
 
 
+TRANSLATION_AXES, ROTATION_AXES = OFFSET_AXES[:3], OFFSET_AXES[3:]  # x y z (mm in the journal), a b c (deg)
+MM, DEG = 1e-3, math.pi / 180.0
+
+
 class PlantMetrics:
     def __init__(self, calibration_date: float | None) -> None:
+        disable_created_metrics()  # a *_created series per counter and histogram says nothing the plant knows
         self.registry = r = CollectorRegistry(auto_describe=True)
         ProcessCollector(registry=r)  # process_resident_memory_bytes & co. of the plant itself
         self.cycles = Counter("monoguide_cycles", "Finished cycles by status and error code (the journal's rows).",
@@ -36,14 +50,17 @@ class PlantMetrics:
         self.overhead = Histogram("monoguide_cycle_overhead_seconds",
                                   "The last frame in hand to the offset acknowledged by the robot (good cycles).",
                                   buckets=OVERHEAD_BUCKETS_S, registry=r)
-        self.offset = Gauge("monoguide_base_offset", "The last good cycle's base offset: x y z mm, a b c deg.",
-                            ["axis"], registry=r)
-        self.rms = Gauge("monoguide_reprojection_rms_pixels", "The last solved cycle's reprojection RMS, px.",
+        self.translation = Gauge("monoguide_base_offset_translation", "The last good cycle's base offset: x, y, z.",
+                                 ["axis"], unit="metres", registry=r)
+        self.rotation = Gauge("monoguide_base_offset_rotation",
+                              "The last good cycle's base offset: A, B, C (KUKA Z-Y'-X'').", ["axis"], unit="radians",
+                              registry=r)
+        self.rms = Gauge("monoguide_reprojection_rms", "The last solved cycle's reprojection RMS.", unit="pixels",
                          registry=r)
-        self.sigma_mm = Gauge("monoguide_sigma_position_millimetres",
-                              "The last solved cycle's predicted sigma at the grasp point, mm.", registry=r)
-        self.sigma_deg = Gauge("monoguide_sigma_rotation_degrees",
-                               "The last solved cycle's predicted sigma of the rotation, deg.", registry=r)
+        self.sigma_position = Gauge("monoguide_sigma_position", "The last solved cycle's predicted sigma at the grasp "
+                                    "point.", unit="metres", registry=r)
+        self.sigma_rotation = Gauge("monoguide_sigma_rotation", "The last solved cycle's predicted sigma of the "
+                                    "rotation.", unit="radians", registry=r)
         self.last_cycle = Gauge("monoguide_last_cycle", "The number of the last finished cycle.", registry=r)
         self.last_cycle_time = Gauge("monoguide_last_cycle_timestamp_seconds",
                                      "When the last cycle was committed (Unix s).", registry=r)
@@ -61,25 +78,17 @@ class PlantMetrics:
         self.health = Gauge("monoguide_calibration_health_level",
                             "The calibration's health: 0 ok, 1 warning, 2 alarm latched (NaN: no service running).",
                             registry=r)
+        self.refusals = Counter("monoguide_plant_refusals", "What the plant's interfaces refused, by interface "
+                                "(opcua, metrics) and reason (docs/opcua.md, docs/metrics.md).",
+                                ["interface", "reason"], registry=r)
         self.calibration_date = calibration_date
-        for axis in OFFSET_AXES:
-            self.offset.labels(axis=axis).set(math.nan)
-        for gauge in (self.rms, self.sigma_mm, self.sigma_deg, self.health):
+        for axis in TRANSLATION_AXES:
+            self.translation.labels(axis=axis).set(math.nan)
+        for axis in ROTATION_AXES:
+            self.rotation.labels(axis=axis).set(math.nan)
+        for gauge in (self.rms, self.sigma_position, self.sigma_rotation, self.health):
             gauge.set(math.nan)
-        self._server: Any = None
-
-    def start(self, host: str, port: int) -> str:
-        try:
-            self._server, _ = start_http_server(port, host, registry=self.registry)
-        except OSError as exc:
-            raise PlantListenFailed(f"metrics http://{host}:{port}/metrics: cannot listen: {exc}") from exc
-        return f"http://{f'[{host}]' if ':' in host else host}:{port}/metrics"
-
-    def stop(self) -> None:
-        if self._server is not None:
-            self._server.shutdown()
-            self._server.server_close()
-            self._server = None
+        self._refused: Tally[tuple[str, str]] = Tally()
 
     def seed(self, counts: dict[tuple[str, str | None], int], newest_first: list[CycleResult], counter: int) -> None:
         """The journal's totals and cycle counter at start, and the gauges of its newest cycles (a scrape before the
@@ -113,13 +122,22 @@ class PlantMetrics:
         level = health_level(reading)
         self.health.set(math.nan if level is None else level)
 
+    def count_refusals(self, total: Tally[tuple[str, str]]) -> None:
+        """Bring the refusal counters to ``total`` (``Refusals.total``: every refusal since the start)."""
+        for key, n in total.items():
+            if n > self._refused[key]:
+                self.refusals.labels(interface=key[0], reason=key[1]).inc(n - self._refused[key])
+                self._refused[key] = n
+
     def _gauges(self, result: CycleResult) -> None:
         self.last_cycle.set(result.cycle)
         self.last_cycle_time.set(result.committed_at)
         if result.base_offset is not None:
-            for axis, value in zip(OFFSET_AXES, result.base_offset, strict=True):
-                self.offset.labels(axis=axis).set(value)
-        for gauge, value in ((self.rms, result.rms_px), (self.sigma_mm, result.sigma_mm),
-                             (self.sigma_deg, result.sigma_deg)):
+            for axis, value in zip(TRANSLATION_AXES, result.base_offset[:3], strict=True):
+                self.translation.labels(axis=axis).set(value * MM)
+            for axis, value in zip(ROTATION_AXES, result.base_offset[3:], strict=True):
+                self.rotation.labels(axis=axis).set(value * DEG)
+        for gauge, value, scale in ((self.rms, result.rms_px, 1.0), (self.sigma_position, result.sigma_mm, MM),
+                                    (self.sigma_rotation, result.sigma_deg, DEG)):
             if value is not None:
-                gauge.set(value)
+                gauge.set(value * scale)

@@ -1,5 +1,6 @@
 """The OPC UA server of ``monoguide plant``: asyncua's server with only Sign & Encrypt endpoints, the trust list
-and the users of ``_access``, and the ``VisionSystem`` of ``_address_space`` kept up to date from what the
+and the users of ``_access``, the sessions of ``_sessions``, behind the relay of ``_front`` (asyncua itself listens
+on an ephemeral port of 127.0.0.1), and the ``VisionSystem`` of ``_address_space`` kept up to date from what the
 :class:`~monoguide.daemon.plant._cell_view.CellView` reads.
 """
 
@@ -12,9 +13,10 @@ from collections import deque
 from pathlib import Path
 
 from asyncua import Server, ua
-from asyncua.common.utils import ServiceError
+from cryptography.hazmat.primitives import serialization
+from cryptography.hazmat.primitives.asymmetric import rsa
 
-from monoguide.daemon.errors import PlantListenFailed
+from monoguide.daemon.errors import PlantCertificateError, PlantListenFailed
 from monoguide.daemon.plant._access import PlantUsers, ReadOnlyRules, TrustList
 from monoguide.daemon.plant._address_space import (
     CellDescription,
@@ -24,9 +26,12 @@ from monoguide.daemon.plant._address_space import (
     device_nodes,
 )
 from monoguide.daemon.plant._cell_view import CellReading, health_level
+from monoguide.daemon.plant._front import Front
 from monoguide.daemon.plant._pki import ServerIdentity, server_identity
+from monoguide.daemon.plant._refusals import Refusals
 from monoguide.daemon.plant._result_fields import RESULT_FIELDS, data_value, timestamp, variant
 from monoguide.daemon.plant._results import CycleResult
+from monoguide.daemon.plant._sessions import PlantServer
 from monoguide.daemon.plant._settings import PlantSettings
 from monoguide.daemon.plant._states import vision_state
 
@@ -35,6 +40,7 @@ log = logging.getLogger(__name__)
 SECURITY_POLICIES = (ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt,
                      ua.SecurityPolicyType.Aes256Sha256RsaPss_SignAndEncrypt)
 ENDPOINT_PATH = "monoguide"
+UPSTREAM_HOST = "127.0.0.1"  # where asyncua listens, on a port the system picks: only the relay connects there
 
 
 def endpoint_url(host: str, port: int) -> str:
@@ -44,12 +50,14 @@ def endpoint_url(host: str, port: int) -> str:
 class PlantOpcUa:
     """The server and the nodes it writes; :meth:`start` listens, :meth:`stop` closes it."""
 
-    def __init__(self, settings: PlantSettings, state_dir: Path, cell: CellDescription) -> None:
+    def __init__(self, settings: PlantSettings, state_dir: Path, cell: CellDescription, refusals: Refusals) -> None:
         self.settings, self.state_dir, self.cell = settings, state_dir, cell
         self.url = endpoint_url(settings.opcua_host, settings.opcua_port)
         self.application_uri = f"urn:monoguide:plant:{socket.gethostname()}"
         self.trust = TrustList(settings.trust_dir(state_dir))
-        self.server = Server(user_manager=PlantUsers(settings.users, self.trust))  # type: ignore[arg-type]
+        self.front = Front(settings.opcua_host, settings.opcua_port, settings.limits, refusals)
+        self.server = Server(iserver=PlantServer(PlantUsers(settings.users, self.trust), self.front, settings.limits,
+                                                 refusals))
         self.nodes: VisionSystemNodes | None = None
         self.newest: deque[CycleResult] = deque(maxlen=settings.last_results)
         self._event = None
@@ -74,19 +82,21 @@ class PlantOpcUa:
         await server.load_certificate(str(identity.certificate), format="der")
         await server.load_private_key(str(identity.private_key), format="pem")
         server.set_certificate_validator(self.trust.validate)  # type: ignore[arg-type]
-        # RegisterServer(2) is answered before any session (asyncua's discovery-server role): refused, so that no
-        # client, trusted or not, can add an entry to what this server tells others (FindServers)
-        server.iserver.register_server = _refuse_registration  # type: ignore[method-assign]
-        server.iserver.register_server2 = _refuse_registration  # type: ignore[method-assign]
+        server.socket_address = (UPSTREAM_HOST, 0)
+        server.set_match_discovery_client_ip(False)  # endpoints name the plant's address, not the relay's socket
         self.nodes = await build_address_space(server, self.cell)
         self._event = await server.get_event_generator(self.nodes.event_type, self.nodes.vision_system)
         try:
             await server.start()
         except OSError as exc:
-            raise PlantListenFailed(f"OPC UA {self.url}: cannot listen: {exc}") from exc
+            raise PlantListenFailed(f"OPC UA {UPSTREAM_HOST} (the server behind {self.url}): cannot listen: "
+                                    f"{exc}") from exc
+        assert server.bserver is not None
+        await self.front.start((UPSTREAM_HOST, server.bserver.port), _private_key(identity))
         return identity
 
     async def stop(self) -> None:
+        await self.front.stop()
         if self.server.bserver is not None:
             await self.server.stop()
 
@@ -188,5 +198,11 @@ class PlantOpcUa:
         await self.server.write_attribute_value(nodeid, value)
 
 
-def _refuse_registration(*_: object) -> None:
-    raise ServiceError(ua.StatusCodes.BadServiceUnsupported)
+def _private_key(identity: ServerIdentity) -> rsa.RSAPrivateKey:
+    try:
+        key = serialization.load_pem_private_key(identity.private_key.read_bytes(), password=None)
+    except (OSError, ValueError) as exc:
+        raise PlantCertificateError(f"{identity.private_key}: cannot read the server's key: {exc}") from exc
+    if not isinstance(key, rsa.RSAPrivateKey):
+        raise PlantCertificateError(f"{identity.private_key}: not an RSA key (OPC UA's policies need one)")
+    return key

@@ -39,6 +39,11 @@ def hash_problem(stored: str) -> str | None:
     return None
 
 
+def iterations(stored: str) -> int:
+    """The PBKDF2 iterations of a checked hash (:func:`hash_problem` None)."""
+    return int(stored.split("$")[1])
+
+
 def verify_password(password: str, stored: str) -> bool:
     """Whether ``password`` is the one ``stored`` was made from (a constant-time comparison)."""
     if hash_problem(stored) is not None:

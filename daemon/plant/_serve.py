@@ -21,8 +21,10 @@ from typing import Any
 from monoguide.daemon.plant._address_space import CellDescription, Recipe
 from monoguide.daemon.plant._cell_view import CellView
 from monoguide.daemon.plant._metrics import PlantMetrics
+from monoguide.daemon.plant._metrics_http import MetricsEndpoint
 from monoguide.daemon.plant._opcua import PlantOpcUa
 from monoguide.daemon.plant._pki import ServerIdentity
+from monoguide.daemon.plant._refusals import Refusals
 from monoguide.daemon.plant._settings import PlantSettings
 
 log = logging.getLogger(__name__)
@@ -69,10 +71,12 @@ async def serve_plant(config: Any, settings: PlantSettings, state_dir: Path, sto
     """Serve until ``stop`` is set. Raises :class:`PlantListenFailed`, :class:`PlantCertificateError`."""
     cell = describe_cell(config, settings.last_results)
     view = CellView(state_dir)
+    refusals = Refusals(settings.limits.refusal_log_s)
     metrics = PlantMetrics(cell.calibration_date)
-    opcua = PlantOpcUa(settings, state_dir, cell)
+    endpoint = MetricsEndpoint(metrics.registry, settings.metrics_access, settings.limits, refusals)
+    opcua = PlantOpcUa(settings, state_dir, cell, refusals)
     try:
-        metrics_url = metrics.start(settings.metrics_host, settings.metrics_port)
+        metrics_url = await endpoint.start(settings.metrics_host, settings.metrics_port)
         identity = await opcua.start()
         # the journal is read in a worker thread: a read that waits on SQLite (a checkpoint of the service's WAL,
         # a busy file) must never hold up the OPC UA server's loop and its clients' requests
@@ -87,9 +91,11 @@ async def serve_plant(config: Any, settings: PlantSettings, state_dir: Path, sto
                 await asyncio.wait_for(stop.wait(), settings.poll_s)
             if not stop.is_set():
                 await _show(view, opcua, metrics)
+                refusals.tick()
+                metrics.count_refusals(refusals.total)
     finally:
         await opcua.stop()
-        metrics.stop()
+        await endpoint.stop()
         view.close()
 
 

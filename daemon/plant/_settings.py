@@ -12,12 +12,13 @@ from __future__ import annotations
 
 import difflib
 import ipaddress
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from monoguide.daemon.config import read_config_toml
-from monoguide.daemon.errors import ConfigMissingKey, ConfigUnknownKey
+from monoguide.daemon.errors import ConfigMissingKey, ConfigUnknownKey, PlantMetricsAuthRequired
+from monoguide.daemon.plant._metrics_access import MetricsAccess, read_metrics_access
 from monoguide.daemon.plant._passwords import hash_problem
 from monoguide.drivers.errors import ConfigError
 
@@ -25,7 +26,35 @@ PKI_DIR = "plant"  # under the service's state directory, unless [plant] pki_dir
 DEFAULT_OPCUA_PORT = 4840  # IANA's port of OPC UA TCP
 DEFAULT_METRICS_PORT = 9840
 _KEYS = ("opcua_host", "opcua_port", "metrics_host", "metrics_port", "last_results", "poll_s", "anonymous",
-         "pki_dir", "trusted_certificates", "users")
+         "pki_dir", "trusted_certificates", "users", "metrics_web", "max_connections", "max_connections_per_client",
+         "max_sessions", "max_sessions_per_client", "max_subscriptions", "max_subscriptions_per_client",
+         "hello_timeout_s", "activation_timeout_s", "session_timeout_s", "login_failures", "login_window_s",
+         "metrics_max_connections", "metrics_max_connections_per_client", "metrics_timeout_s", "refusal_log_s")
+
+
+@dataclass(frozen=True)
+class PlantLimits:
+    """What one client (an IP address) and all of them together may hold, and how long a stranger may wait.
+
+    Counts per client are per source address: a SCADA server's sessions all come from one. The defaults hold a cell's
+    few plant clients with room to spare and keep the process far from its file descriptor limit (``LimitNOFILE``
+    of systemd/monoguide-plant.service): each OPC UA connection costs three descriptors (docs/opcua.md)."""
+
+    connections: int = 64  # OPC UA TCP connections at once, all clients
+    connections_per_client: int = 8
+    sessions: int = 64  # OPC UA sessions (created or activated, until closed or timed out)
+    sessions_per_client: int = 10
+    subscriptions: int = 128
+    subscriptions_per_client: int = 20
+    hello_timeout_s: float = 5.0  # a new connection's Hello, then its OpenSecureChannel, each within this
+    activation_timeout_s: float = 10.0  # a connection without an activated session is closed after this
+    session_timeout_s: float = 120.0  # the longest session timeout granted (a client asks for its own)
+    login_failures: int = 5  # failed logins of one client within login_window_s before it must wait
+    login_window_s: float = 60.0
+    metrics_connections: int = 16
+    metrics_connections_per_client: int = 4
+    metrics_timeout_s: float = 5.0  # a scrape's request (TLS handshake, headers) must arrive within this
+    refusal_log_s: float = 60.0  # what was refused is logged at most once per this interval
 
 
 @dataclass(frozen=True)
@@ -48,6 +77,8 @@ class PlantSettings:
     pki_dir: Path | None = None
     trusted_certificates: Path | None = None
     users: tuple[PlantUser, ...] = ()
+    limits: PlantLimits = PlantLimits()
+    metrics_access: MetricsAccess = field(default_factory=MetricsAccess)
 
     def pki(self, state_dir: Path) -> Path:
         return self.pki_dir if self.pki_dir is not None else state_dir / PKI_DIR
@@ -93,11 +124,49 @@ def _read(path: Path, t: Any) -> PlantSettings:
         pki_dir=_path(path, where, t, "pki_dir"),
         trusted_certificates=_path(path, where, t, "trusted_certificates"),
         users=_users(where, t.get("users", [])),
+        limits=_limits(where, t),
+        metrics_access=read_metrics_access(path, where, t.get("metrics_web", {})),
     )
     if out.anonymous and not is_loopback(opcua_host):
         raise ConfigError(f"{where}.anonymous = true with opcua_host = {opcua_host!r}: an anonymous identity is "
                           "allowed on a loopback address only (127.0.0.0/8, ::1); a plant network needs users or "
                           "client certificates")
+    if not is_loopback(out.metrics_host) and not out.metrics_access.complete:
+        raise PlantMetricsAuthRequired(
+            f"{where}.metrics_host = {out.metrics_host!r} without [plant.metrics_web] tls_server_config and "
+            "basic_auth_users: the metrics leave loopback only over TLS with basic authentication (docs/metrics.md)")
+    return out
+
+
+def _limits(where: str, t: dict[str, Any]) -> PlantLimits:
+    d = PlantLimits()
+    out = PlantLimits(
+        connections=_integer(where, t, "max_connections", d.connections, 1, 10_000),
+        connections_per_client=_integer(where, t, "max_connections_per_client", d.connections_per_client, 1, 10_000),
+        sessions=_integer(where, t, "max_sessions", d.sessions, 1, 10_000),
+        sessions_per_client=_integer(where, t, "max_sessions_per_client", d.sessions_per_client, 1, 10_000),
+        subscriptions=_integer(where, t, "max_subscriptions", d.subscriptions, 1, 100_000),
+        subscriptions_per_client=_integer(where, t, "max_subscriptions_per_client", d.subscriptions_per_client, 1,
+                                          100_000),
+        hello_timeout_s=_number(where, t, "hello_timeout_s", d.hello_timeout_s, 0.1, 60.0),
+        activation_timeout_s=_number(where, t, "activation_timeout_s", d.activation_timeout_s, 0.5, 600.0),
+        session_timeout_s=_number(where, t, "session_timeout_s", d.session_timeout_s, 10.0, 3600.0),
+        login_failures=_integer(where, t, "login_failures", d.login_failures, 1, 1000),
+        login_window_s=_number(where, t, "login_window_s", d.login_window_s, 1.0, 3600.0),
+        metrics_connections=_integer(where, t, "metrics_max_connections", d.metrics_connections, 1, 1000),
+        metrics_connections_per_client=_integer(where, t, "metrics_max_connections_per_client",
+                                                d.metrics_connections_per_client, 1, 1000),
+        metrics_timeout_s=_number(where, t, "metrics_timeout_s", d.metrics_timeout_s, 0.1, 60.0),
+        refusal_log_s=_number(where, t, "refusal_log_s", d.refusal_log_s, 0.1, 3600.0),
+    )
+    for total, each, names in ((out.connections, out.connections_per_client, "max_connections"),
+                               (out.sessions, out.sessions_per_client, "max_sessions"),
+                               (out.subscriptions, out.subscriptions_per_client, "max_subscriptions"),
+                               (out.metrics_connections, out.metrics_connections_per_client,
+                                "metrics_max_connections")):
+        if each > total:
+            raise ConfigError(f"{where}.{names}_per_client = {each}: more than {names} = {total}, the total of all "
+                              "clients")
     return out
 
 

@@ -5,7 +5,12 @@ the part after the colon; salt and hash in base64), ``#`` comments and blank lin
 name and password (HTTP Basic). A token file has one token per line, sent as ``Authorization: Bearer TOKEN`` (a
 script, a plant system). scrypt is the standard library's (``hashlib.scrypt``, RFC 7914); a good Basic header is
 remembered (its SHA-256, at most ``REMEMBERED`` of them) so that the page's images and its polling do not pay the
-KDF on every request. Every comparison takes the same time whatever matched (``hmac.compare_digest``).
+KDF on every request. Every comparison takes the same time whatever matched (``hmac.compare_digest``), and every
+failed Basic header costs one scrypt check whatever failed: a name that is no user's, or a header that is no
+name and password, is checked against a stand-in hash of the dearest parameters the users file has. After
+:data:`FAILURES` failed headers within :data:`WINDOW_S` from one client address, :meth:`Credentials.waiting` says
+so and the page answers 429 without a check until the oldest failure has left the window (a header proved before
+still passes).
 """
 
 from __future__ import annotations
@@ -16,6 +21,8 @@ import hashlib
 import hmac
 import os
 import threading
+import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -25,6 +32,8 @@ from monoguide.drivers.errors import ConfigError
 
 SCRYPT_N, SCRYPT_R, SCRYPT_P = 2**14, 8, 1  # ~50 ms and 16 MB a check: the usual interactive cost
 REMEMBERED = 64
+FAILURES, WINDOW_S = 5, 60.0  # failed logins of one client address within the window before it must wait
+CLIENTS_KEPT = 4096  # addresses whose failures are remembered, the oldest forgotten first
 
 
 def hash_password(password: str, salt: bytes | None = None) -> str:
@@ -42,6 +51,8 @@ class Credentials:
     tokens: tuple[str, ...] = ()
     _remembered: dict[bytes, str] = field(default_factory=dict, repr=False)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+    _failed: dict[str, deque[float]] = field(default_factory=dict, repr=False)  # client address -> failure times
+    _stand_in: str = field(default="", repr=False)
 
     @classmethod
     def load(cls, users_file: Path | None, token_file: Path | None) -> Credentials | None:
@@ -52,8 +63,32 @@ class Credentials:
         tokens = _read_tokens(token_file) if token_file is not None else ()
         return cls(users, tokens)
 
-    def allows(self, authorization: str | None) -> str | None:
-        """The name of whom ``authorization`` (the request's header) proves, else None."""
+    def waiting(self, client: str | None) -> bool:
+        """Whether ``client`` (an address) has had :data:`FAILURES` failed logins within :data:`WINDOW_S`."""
+        with self._lock:
+            times = self._failed.get(client or "")
+            while times and time.monotonic() - times[0] > WINDOW_S:
+                times.popleft()
+            return times is not None and len(times) >= FAILURES
+
+    def remembered(self, authorization: str) -> bool:
+        """Whether ``authorization`` is a Basic header proved before (it passes while its address waits)."""
+        value = authorization.partition(" ")[2].strip()
+        with self._lock:
+            return hashlib.sha256(value.encode()).digest() in self._remembered
+
+    def allows(self, authorization: str | None, client: str | None = None) -> str | None:
+        """The name of whom ``authorization`` (the request's header) proves, else None; a wrong header counts as a
+        failed login of ``client`` (the request's address)."""
+        name = self._proves(authorization)
+        if name is None and authorization:
+            with self._lock:
+                if client not in self._failed and len(self._failed) >= CLIENTS_KEPT:
+                    self._failed.pop(next(iter(self._failed)))
+                self._failed.setdefault(client or "", deque(maxlen=FAILURES)).append(time.monotonic())
+        return name
+
+    def _proves(self, authorization: str | None) -> str | None:
         if not authorization:
             return None
         scheme, _, value = authorization.partition(" ")
@@ -73,15 +108,25 @@ class Credentials:
         try:
             name, _, password = base64.b64decode(value, validate=True).decode().partition(":")
         except (binascii.Error, UnicodeDecodeError):
-            return None
+            name, password = "", ""
         stored = self.users.get(name)
-        if stored is None or not _verify(password, stored):
+        if not _verify(password, stored or self._dearest()) or stored is None:
             return None
         with self._lock:
             if len(self._remembered) >= REMEMBERED:
                 self._remembered.pop(next(iter(self._remembered)))
             self._remembered[key] = name
         return name
+
+
+    def _dearest(self) -> str:
+        """The stand-in hash an unknown name is checked against: of the dearest scrypt parameters of the users."""
+        if not self._stand_in:
+            n, r, p = max(tuple(int(v) for v in stored.split("$")[1:4]) for stored in self.users.values())
+            salt = os.urandom(16)
+            digest = hashlib.scrypt(os.urandom(16), salt=salt, n=n, r=r, p=p, maxmem=256 * 2**20, dklen=32)
+            self._stand_in = f"scrypt${n}${r}${p}${_b64(salt)}${_b64(digest)}"
+        return self._stand_in
 
 
 # --- private ------------------------------------------------------------------------------------

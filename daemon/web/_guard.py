@@ -65,7 +65,11 @@ class Guard:
             return 421, "421 not a name of this server\n", []
         if self.credentials is not None:
             authorization = headers.get(b"authorization", b"").decode("latin-1")
-            if self.credentials.allows(authorization) is None:
+            client = scope["client"][0] if scope.get("client") else None
+            if authorization and self.credentials.waiting(client) and not self.credentials.remembered(authorization):
+                return 429, "429 too many failed logins from this address: wait a minute\n", [
+                    (b"retry-after", b"60")]
+            if self.credentials.allows(authorization, client) is None:
                 challenge = b'Basic realm="monoguide", charset="UTF-8"' if self.credentials.users else b"Bearer"
                 return 401, "401 credentials needed\n", [(b"www-authenticate", challenge)]
         return None

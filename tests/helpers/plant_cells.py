@@ -17,6 +17,8 @@ from monoguide.daemon.service import CycleEntry, DeviceStatus, Journal, ServiceS
 from monoguide.solver.errors import FeatureNotFound
 
 USER, PASSWORD = "scada", "correct horse battery staple"
+# the benchmark's 21 sessions and 41 subscriptions all come from 127.0.0.1: one client to the plant's limits
+MANY_SESSIONS = "max_connections_per_client = 32\nmax_sessions_per_client = 32\nmax_subscriptions_per_client = 64"
 
 
 @dataclass

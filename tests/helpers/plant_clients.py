@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import resource
 import socket
 import subprocess
 import sys
@@ -57,10 +58,11 @@ def trust(identity: ClientIdentity, trust_dir: Path) -> None:
 async def connected(url: str, identity: ClientIdentity | None, *, user: str | None = None,
                     password: str | None = None, policy: str = "Basic256Sha256",
                     mode: ua.MessageSecurityMode = ua.MessageSecurityMode.SignAndEncrypt,
-                    x509_identity: bool = False, timeout_s: float = 10.0) -> Client:
-    """A connected client (the caller disconnects it); raises what the server refused with."""
+                    x509_identity: bool = False, timeout_s: float = 10.0, application_uri: str | None = None) -> Client:
+    """A connected client (the caller disconnects it); raises what the server refused with. ``application_uri``:
+    the one the client says it has (default: its certificate's)."""
     client = Client(url, timeout=timeout_s)
-    client.application_uri = identity.application_uri if identity else "urn:test:none"
+    client.application_uri = application_uri or (identity.application_uri if identity else "urn:test:none")
     if identity is not None:
         await client.set_security(POLICIES[policy], str(identity.certificate), str(identity.key), mode=mode)
         if x509_identity:
@@ -122,15 +124,17 @@ async def _event_type(client: Client, idx: int) -> Any:
 
 
 def start_plant(config: Path, state_dir: Path, plant_config: Path | None, log: Path,
-                timeout_s: float = START_S) -> tuple[subprocess.Popen[str], str]:
+                timeout_s: float = START_S, nofile: int | None = None) -> tuple[subprocess.Popen[str], str]:
     """``monoguide plant`` as its own process (its log into ``log``); returns it and its ``plant: ...`` line once it
-    serves. Stop it with ``helpers.sim_processes.stop``."""
+    serves. ``nofile``: its soft limit of open files (as a unit's ``LimitNOFILE`` sets it). Stop it with
+    ``helpers.sim_processes.stop``."""
     command = [sys.executable, "-m", "monoguide.daemon.cli", "plant", "--config", str(config), "--state-dir",
                str(state_dir)]
     if plant_config is not None:
         command += ["--plant-config", str(plant_config)]
     with log.open("w") as err:
-        process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=err, stdin=subprocess.DEVNULL, text=True)
+        process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=err, stdin=subprocess.DEVNULL, text=True,
+                                   preexec_fn=None if nofile is None else lambda: _limit_files(nofile))
     assert process.stdout is not None
     watchdog = threading.Timer(timeout_s, process.kill)
     watchdog.start()
@@ -143,3 +147,8 @@ def start_plant(config: Path, state_dir: Path, plant_config: Path | None, log: P
         process.wait(10)
         pytest.fail(f"monoguide plant did not start: {line!r} {log.read_text()[-3000:]}")
     return process, line.strip()
+
+
+def _limit_files(nofile: int) -> None:
+    hard = resource.getrlimit(resource.RLIMIT_NOFILE)[1]
+    resource.setrlimit(resource.RLIMIT_NOFILE, (min(nofile, hard), hard))

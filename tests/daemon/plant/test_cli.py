@@ -71,3 +71,13 @@ def test_the_password_hash_it_prints(tmp_path: Path) -> None:
     stored = done.stdout.strip()
     assert stored.startswith("pbkdf2_sha256$600000$") and "correct horse" not in stored
     assert verify_password("correct horse", stored) and not verify_password("correct hors", stored)
+
+
+def test_the_bcrypt_hash_it_prints_for_the_metrics(tmp_path: Path) -> None:
+    import bcrypt
+
+    done = _plant(tmp_path, None, "--hash-password", "--bcrypt", stdin="scrape me\n")
+    assert done.returncode == 0, done.stderr
+    stored = done.stdout.strip()
+    assert stored.startswith("$2b$10$") and len(stored) == 60
+    assert bcrypt.checkpw(b"scrape me", stored.encode()) and not bcrypt.checkpw(b"scrape m", stored.encode())

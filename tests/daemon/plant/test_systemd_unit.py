@@ -43,3 +43,10 @@ def test_the_plant_unit_is_hardened_as_the_service() -> None:
 def test_systemd_analyze_verify_is_silent() -> None:
     done = subprocess.run([ANALYZE, "verify", str(UNIT)], capture_output=True, text=True, timeout=30)
     assert (done.returncode, done.stderr, done.stdout) == (0, "", "")
+
+
+@pytest.mark.parametrize("unit", ["monoguide-plant.service", "monoguide-web.service"])
+def test_the_listening_units_raise_the_open_file_limit(unit: str) -> None:
+    """systemd's default soft limit (1024) is what a flood of idle connections exhausted; both listening units raise
+    it well past what their connection limits hold (test_wire_security.py runs the plant under this value)."""
+    assert [int(v) for v in _keys(SYSTEMD / unit).get("LimitNOFILE", ["1024"])] == [8192]

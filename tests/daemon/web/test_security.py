@@ -6,7 +6,9 @@ page, the process keeps serving)."""
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import http.client
+import os
 import re
 import subprocess
 import sys
@@ -229,3 +231,51 @@ def test_https_with_a_given_certificate(tmp_path: Path, prepared: Prepared) -> N
     finally:
         process.terminate()
         process.wait(15)
+
+
+def test_a_failed_login_costs_the_same_and_an_address_that_keeps_failing_waits(tmp_path: Path,
+                                                                               prepared: Prepared) -> None:
+    """A wrong password of a user, a name of nobody and a header that is no name and password: the page spends
+    the same processor time on each (one scrypt check; before, only a user's name got one). Five failed logins from
+    one address within a minute: that address gets 429 even with the right password, a header it proved before
+    still passes, another address is not held up."""
+    users = tmp_path / "users"
+    users.write_text(f"maintainer:{hash_password('roof cell 7')}\nplanner:{hash_password('beam 12')}\n")
+    host, port = "127.0.22.7", 8228
+    with web_process(prepared.state_dir, host, port, "--users", str(users)) as process:
+        def get(authorization: str, source: str) -> int:
+            connection = http.client.HTTPConnection(host, port, timeout=10, source_address=(source, 0))
+            try:
+                connection.request("GET", "/now.json", headers={"authorization": authorization})
+                answer = connection.getresponse()
+                answer.read()
+                return answer.status
+            finally:
+                connection.close()
+
+        cpu: dict[str, float] = {}
+        for n, (kind, header) in enumerate((("user", _basic("maintainer", "wrong")),
+                                            ("nobody", _basic("nobody", "wrong")),
+                                            ("garbage", "Basic " + "QUFB" * 8))):
+            used = _cpu_s(process.pid)
+            for attempt in range(4):
+                assert get(header, f"127.0.22.{100 + 10 * n + attempt}") == 401
+            cpu[kind] = (_cpu_s(process.pid) - used) / 4
+        started = time.process_time()
+        hashlib.scrypt(b"x", salt=b"0" * 16, n=2**14, r=8, p=1, dklen=32)
+        check_s = time.process_time() - started
+        print(f"failed logins, the page's CPU s each: {cpu}; one scrypt check {check_s:.3f} s")
+        assert abs(cpu["user"] - cpu["nobody"]) < 0.5 * check_s and abs(cpu["user"] - cpu["garbage"]) < 0.5 * check_s
+
+        right, source = _basic("maintainer", "roof cell 7"), "127.0.22.150"
+        assert get(right, source) == 200
+        for _ in range(5):
+            assert get(_basic("maintainer", "guess"), source) == 401
+        assert get(_basic("planner", "beam 12"), source) == 429  # right, but this address must wait
+        assert get(right, source) == 200  # proved before: still good
+        assert get(_basic("planner", "beam 12"), "127.0.22.151") == 200
+
+
+def _cpu_s(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
