@@ -69,7 +69,9 @@ class Line:
             if done(status):
                 return status
             await asyncio.sleep(0.005)
-        raise AssertionError(f"PLC: no {what} within {timeout_s} s (status {await self.status()!r})")
+        result = (await self.outputs()).result  # what register 11 says of it (a FAULT's code)
+        raise AssertionError(f"PLC: no {what} within {timeout_s} s (status {await self.status()!r}, register 11 = "
+                             f"{result.error_code}, register 13 = {result.cycle_counter})")
 
     async def trigger(self, job: int | None = None, tag: int | None = None, timeout_s: float = 60.0) -> Status:
         """TRIGGER as docs/plc-interface.md tells a PLC to raise it: on READY; when READY falls before BUSY shows (a
