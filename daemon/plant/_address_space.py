@@ -46,7 +46,7 @@ SERVICE_VARIABLES = (("State", ua.VariantType.String), ("Running", ua.VariantTyp
                      ("CycleCounter", ua.VariantType.UInt64), ("JournalBytes", ua.VariantType.UInt64))
 DEVICE_VARIABLES = (("Connected", ua.VariantType.Boolean), ("LastErrorCode", ua.VariantType.String),
                     ("LastErrorMessage", ua.VariantType.String))
-HISTORY_AND_EVENTS = ua.EventNotifier.SubscribeToEvents | ua.EventNotifier.HistoryRead
+HISTORY_AND_EVENTS = (1 << ua.EventNotifier.SubscribeToEvents) | (1 << ua.EventNotifier.HistoryRead)  # bit offsets
 
 
 @dataclass(frozen=True)

@@ -58,7 +58,6 @@ class Alarm:
         states = {
             "EnabledState": ua.LocalizedText("Enabled"), "EnabledState/Id": True,
             "ActiveState": ua.LocalizedText("Active" if active else "Inactive"), "ActiveState/Id": active,
-            "ActiveState/TransitionTime": now,
             "AckedState": ua.LocalizedText("Unacknowledged" if active else "Acknowledged"), "AckedState/Id": not active,
             "Retain": active,
         }
@@ -74,8 +73,7 @@ class Alarm:
         event.BranchId = ua.NodeId()
         event.ClientUserId = "monoguide"
         for name, value in states.items():
-            if "/" not in name or name.endswith("/Id"):
-                await self._write(name, value)
+            await self._write(name, value)
         await self._write("Retain", active)
         await self._write("Severity", ua.Variant(self.kind.severity, ua.VariantType.UInt16))
         await self._write("Message", ua.LocalizedText(message))

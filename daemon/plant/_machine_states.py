@@ -78,9 +78,12 @@ class VisionStates:
         await self._write(machine.last_time, ua.DataValue(ua.Variant(now, ua.VariantType.DateTime)))
         changed = self._events[mv.STATE_CHANGED_EVENT_TYPE]
         event = changed.event
-        for field, value in (("Transition", ua.LocalizedText(name)), ("Transition/Id", nodeid),
-                             ("FromState", ua.LocalizedText(source)), ("FromState/Id", machine.states[source][0]),
-                             ("ToState", ua.LocalizedText(target)), ("ToState/Id", machine.states[target][0])):
+        def node(value: ua.NodeId) -> ua.Variant:  # the Ids are BaseDataType fields: a Variant holding the NodeId
+            return ua.Variant(value, ua.VariantType.NodeId)
+
+        for field, value in (("Transition", ua.LocalizedText(name)), ("Transition/Id", node(nodeid)),
+                             ("FromState", ua.LocalizedText(source)), ("FromState/Id", node(machine.states[source][0])),
+                             ("ToState", ua.LocalizedText(target)), ("ToState/Id", node(machine.states[target][0]))):
             setattr(event, field, value)
         event.Severity = SEVERITY
         await changed.trigger(time_attr=now, message=f"{source} to {target} ({name})")
