@@ -169,6 +169,8 @@ def fill_result_event(event: Any, result: CycleResult, shapes: ResultShapes) -> 
     (100 a good result, 500 a failed one) and Time (the journal row's)."""
     for name, value in shapes.fields(result).items():
         setattr(event, name, value.Value)
+        if value.VariantType != ua.VariantType.Null:  # asyncua types a field by its declaration's value: some have none
+            event.data_types[name] = value.VariantType
     for field in OWN_FIELDS:
         setattr(event, field.name, own_variant(field, result).Value)
     event.Severity = 100 if result.ok else 500

@@ -209,8 +209,8 @@ def _signature(identity: ClientIdentity, created: ua.CreateSessionResult) -> ua.
 
 async def _result_counter(client: Client) -> object:
     idx = await client.get_namespace_index(NAMESPACE)
-    read = ua.ReadParameters(NodesToRead=[ua.ReadValueId(NodeId=ua.NodeId("VisionSystem.ResultManagement.LastResultId",
-                                                                          idx), AttributeId=ua.AttributeIds.Value)])
+    read = ua.ReadParameters(NodesToRead=[ua.ReadValueId(NodeId=ua.NodeId("VisionSystem.Service.CycleCounter", idx),
+                                                             AttributeId=ua.AttributeIds.Value)])
     values = await client.uaclient.read(read)
     return values[0].Value.Value
 

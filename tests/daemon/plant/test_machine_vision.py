@@ -116,7 +116,7 @@ def test_a_generic_client_binds_by_the_published_names_and_reads_a_result_by_id(
             job_id = await (await newest_result.get_child(f"{mv}:JobId")).read_value()
             result_id = await (await newest_result.get_child(f"{mv}:ResultId")).read_value()
             assert (job_id.Id, result_id.Id) == (str(newest), str(newest))
-            handle, result, error = await (await _path(vs, mv, "ResultManagement")).call_method(
+            _, result, error = await (await _path(vs, mv, "ResultManagement")).call_method(
                 f"{mv}:GetResultById", ua.Variant(result_id), ua.Variant(1000, ua.VariantType.Int32))
             assert error == 0 and result.ResultId.Id == str(newest) and result.JobId.Id == str(newest)
             assert result.ResultState == (1 if entry.error is None else -1)
@@ -133,7 +133,8 @@ def test_a_generic_client_binds_by_the_published_names_and_reads_a_result_by_id(
                 ua.Variant(0, ua.VariantType.Int32))
             assert earlier.ResultContent[0].Value == pytest.approx(good.result["base_offset_xyzabc"])
             *_, missing = await (await _path(vs, mv, "ResultManagement")).call_method(
-                f"{mv}:GetResultById", ua.Variant(ua.ResultIdDataType(Id="999999")), ua.Variant(0, ua.VariantType.Int32))
+                f"{mv}:GetResultById", ua.Variant(ua.ResultIdDataType(Id="999999")),
+                ua.Variant(0, ua.VariantType.Int32))
             assert missing == -1
         finally:
             await client.disconnect()
@@ -186,6 +187,7 @@ def test_history_read_gives_the_missed_result_events(plant_cell: PlantCell) -> N
             assert [e.ResultId.Id for e in events] == [str(n) for n in range(3, 10)]
             assert events[0].Time.timestamp() == pytest.approx(seeded[2].finished_at, abs=1e-3)
             assert [e.ErrorCode for e in events] == [e.error.code if e.error else "" for e in seeded[2:9]]
+            assert [e.ResultState for e in events] == [-1 if e.error else 1 for e in seeded[2:9]]
             paged = await vs.read_event_history(start, end, 2, [event_type])
             assert [e.ResultId.Id for e in paged] == ["3", "4"]
             backward = await vs.read_event_history(end, start, 3, [event_type])
