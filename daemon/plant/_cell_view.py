@@ -86,7 +86,8 @@ class CellView:
         reading = CellReading(status, liveness(status, now).running, journal_bytes=self._journal_bytes())
         with contextlib.suppress(OSError):
             disk = os.statvfs(self.state_dir)
-            reading.disk_free_bytes, reading.disk_size_bytes = disk.f_bavail * disk.f_frsize, disk.f_blocks * disk.f_frsize
+            reading.disk_free_bytes = disk.f_bavail * disk.f_frsize
+            reading.disk_size_bytes = disk.f_blocks * disk.f_frsize
         journal = self._journal()
         if journal is None:
             return reading

@@ -296,3 +296,24 @@ def test_no_client_can_register_a_server(plant_cell: PlantCell) -> None:
             client.disconnect_socket()
 
     asyncio.run(run())
+
+
+@pytest.mark.parametrize(("probe", "who", "refusal"), [
+    ("results", "client", None),
+    ("wrong-password", "client", "BadUserAccessDenied"),
+    ("results", "stranger", "BadCertificateUntrusted"),
+])
+def test_a_second_stack_binds_reads_and_is_refused_alike(plant_cell: PlantCell, probe: str, who: str,
+                                                         refusal: str | None) -> None:
+    """node-opcua's client (not asyncua): by the published browse names it reads the state's StateNumber and
+    Result01's JobId and fetches that result with GetResultById; refused as asyncua's client is."""
+    from helpers.plant_wire import node_probe
+
+    identity = plant_cell.client if who == "client" else plant_cell.stranger
+    answer = node_probe(probe, plant_cell.url, identity, USER, PASSWORD)
+    assert answer.refused == refusal, answer
+    if refusal is None:
+        with Journal(plant_cell.state_dir, read_only=True) as journal:
+            newest = str(journal.cycle_counter())
+        assert answer.value == {"stateNumber": 4, "jobId": newest, "callStatus": "Good", "resultId": newest,
+                                "jobOfResult": newest, "error": 0}  # 4: Operational's StateNumber as published
