@@ -47,6 +47,7 @@ from helpers.plant_clients import (
     NAMESPACE,
     client_identity,
     connected,
+    load_machine_vision_types,
     start_plant,
     subscribe_results,
     trust,
@@ -105,6 +106,7 @@ async def _cycles(tmp: Path, config_path: Path, cycles: int, block: int, toggle:
     windows: list[tuple[str, float, float]] = []  # (condition, from, to)
     try:
         watcher = await connected(url, clients[0], user=USER, password=PASSWORD)
+        await load_machine_vision_types(watcher)
         log, _ = await subscribe_results(watcher)
         service = await asyncio.create_subprocess_exec(
             sys.executable, "-m", "monoguide.daemon.cli", "run", "--config", str(config), "--state-dir",
@@ -209,7 +211,7 @@ def _print_cycles(events: list[tuple[float, dict[str, Any]]], rows: dict[int, An
     overhead: dict[str, list[float]] = {"without": [], "with": []}
     cycle_time: dict[str, list[float]] = {"without": [], "with": []}
     for arrived, fields in events:
-        row = rows[value(fields, "ResultId")]
+        row = rows[int(value(fields, "ResultId").Id)]
         latency["all"].append(arrived - row.finished_at)
         condition = next((c for c, start, end in windows if start <= row.started_at and arrived <= end), None)
         if condition is None or row.status != "ok":
@@ -219,7 +221,7 @@ def _print_cycles(events: list[tuple[float, dict[str, Any]]], rows: dict[int, An
         cycle_time[condition].append(row.timings_s.get("cycle", float("nan")))
     if "--verbose" in sys.argv:
         print(windows)
-        print([(round(rows[value(f, "ResultId")].started_at, 1), round(a, 1)) for a, f in events])
+        print([(round(rows[int(value(f, "ResultId").Id)].started_at, 1), round(a, 1)) for a, f in events])
     every = sorted(latency["all"])
     print(f"\nresult event latency (client arrival - journal row), {len(every)} cycles, ms")
     print("| median | p90 | max | min |\n|---|---|---|---|")
@@ -250,6 +252,7 @@ async def _memory(tmp: Path, events: int, rate: float) -> None:
     samples: list[tuple[int, float]] = []
     try:
         client = await connected(line.split()[2], clients[0], user=USER, password=PASSWORD)
+        await load_machine_vision_types(client)
         log, _ = await subscribe_results(client)
         samples.append((0, _rss_mb(plant.pid)))
         entries = seeded_entries(100, time.time())

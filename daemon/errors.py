@@ -362,6 +362,14 @@ class PlantMetricsAuthRequired(ConfigError):
     plc_code = 682
 
 
+class PlantNodeSetInvalid(ConfigError):
+    """``monoguide plant``: ``[plant] machine_vision_nodeset`` missing, or not the OPC Foundation's Machine Vision
+    NodeSet2 file (model 1.0.0) that the OPC UA server is built from."""
+
+    code = "PLANT_NODESET"
+    plc_code = 683
+
+
 def drop_tracebacks(error: BaseException | None) -> None:
     """Let go of what ``error`` holds through its traceback, and through those of its cause and context: the frames
     of every stage it passed, with their images and arrays (tens of MB for a hole not found). A finished cycle's

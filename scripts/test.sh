@@ -13,5 +13,10 @@ if ! command -v chromium >/dev/null 2>&1 || ! command -v chromedriver >/dev/null
          "apt-get install -y chromium chromium-driver to run them" >&2
     set -- -m "not browser" "$@"
 fi
+# the plant's tests need Debian's prometheus (promtool, the server) and npm (.ci/run installs both when missing)
+for tool in promtool prometheus npm; do
+    command -v "$tool" >/dev/null 2>&1 || echo "NOTE: $tool not installed: the plant's tests that need it fail;" \
+        "apt-get install -y prometheus nodejs npm" >&2
+done
 # two workers, each test file on one of them (a file's tests share its loopback addresses and fixtures)
 exec "$venv"/bin/python -m pytest -n 2 --dist loadfile "$@"

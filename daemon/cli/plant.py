@@ -2,7 +2,8 @@
 from the service's state directory (docs/opcua.md, docs/metrics.md).
 
 Exit status: 0 stopped by SIGTERM, SIGINT or SIGHUP; 2 a config or usage error (the message names the key);
-1 another failure (``PLANT_LISTEN_FAILED``: a port in use; ``PLANT_CERTIFICATE``: the server's key or certificate).
+1 another failure (``PLANT_LISTEN_FAILED``: a port in use; ``PLANT_CERTIFICATE``: the server's key or certificate);
+``PLANT_NODESET`` (2): ``[plant] machine_vision_nodeset`` missing or not the published Machine Vision model.
 ``--hash-password`` prints the ``password_hash`` of a ``[[plant.users]]`` entry for the password on standard input
 (with ``--bcrypt``: the bcrypt hash of a ``[plant.metrics_web.basic_auth_users]`` entry).
 """
@@ -72,13 +73,13 @@ def plant(
         directory = state_dir(state_dir_option)
         settings = load_plant_settings(plant_config)
         cfg = load_cell_config(config)
-        asyncio.run(_serve(cfg, settings, directory))
+        asyncio.run(_serve(cfg, settings, directory, config))
     except MonoguideError as error:
         log.error("%s", error_line(error))
         raise typer.Exit(exit_status(error)) from None
 
 
-async def _serve(cfg: object, settings: object, directory: Path) -> None:
+async def _serve(cfg: object, settings: object, directory: Path, config_path: Path) -> None:
     from monoguide.daemon.plant import PlantEndpoints, serve_plant
 
     log = logging.getLogger("monoguide.plant")
@@ -96,4 +97,4 @@ async def _serve(cfg: object, settings: object, directory: Path) -> None:
         print(f"plant: opcua {endpoints.opcua_url} metrics {endpoints.metrics_url} thumbprint "
               f"{identity.thumbprint_sha1}", flush=True)
 
-    await serve_plant(cfg, settings, directory, stop, on_ready=ready)  # type: ignore[arg-type]
+    await serve_plant(cfg, settings, directory, stop, on_ready=ready, config_path=config_path)  # type: ignore[arg-type]

@@ -10,9 +10,10 @@
   identity token whose certificate is in the trust list; anonymous only where ``[plant] anonymous = true`` (a
   loopback address only, `_settings`). A failed password check costs the same whether the user exists or not
   (:meth:`PlantUsers.spend`); which identities a session may present at all, over which channel, is ``_sessions``'.
-- **What it may do** (:class:`ReadOnlyRules`): the services of reading, browsing and subscribing. Write, Call,
-  HistoryUpdate and the node-management services are refused with ``BadUserAccessDenied`` whatever the node, and
-  no variable is writable (``AccessLevel`` CurrentRead).
+- **What it may do** (:class:`ReadOnlyRules`): the services of reading, browsing, subscribing, reading history and
+  calling — a Call only of the methods that read (``_sessions``). Write, HistoryUpdate and the node-management
+  services are refused with ``BadUserAccessDenied`` whatever the node, and no variable is writable (``AccessLevel``
+  CurrentRead).
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ TOLD_MOST = 256  # untrusted certificates named in the log, each once; beyond, o
 # the requests a session may make: reading, browsing, subscribing (OPC 10000-4 service sets), never writing
 ALLOWED_REQUESTS = frozenset(ua.NodeId(getattr(ua.ObjectIds, f"{name}Request_Encoding_DefaultBinary")) for name in (
     "CreateSession", "CloseSession", "ActivateSession", "Read", "Browse", "BrowseNext", "GetEndpoints", "FindServers",
-    "TranslateBrowsePathsToNodeIds", "RegisterNodes", "UnregisterNodes", "HistoryRead", "CreateSubscription",
+    "TranslateBrowsePathsToNodeIds", "RegisterNodes", "UnregisterNodes", "HistoryRead", "Call", "CreateSubscription",
     "ModifySubscription", "DeleteSubscriptions", "TransferSubscriptions", "SetPublishingMode", "Publish",
     "Republish", "CreateMonitoredItems", "ModifyMonitoredItems", "DeleteMonitoredItems", "SetMonitoringMode",
     "CloseSecureChannel",
@@ -156,7 +157,8 @@ class PlantUsers:
 
 
 class ReadOnlyRules(PermissionRuleset):
-    """Every session may read, browse and subscribe; no request that writes or calls is let through."""
+    """Every session may read, browse, subscribe and call (the session checks which method); no request that writes is
+    let through."""
 
     def check_validity(self, user: User, action_type_id: ua.NodeId, body: Any) -> bool:
         return action_type_id in ALLOWED_REQUESTS

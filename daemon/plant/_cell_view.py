@@ -36,6 +36,8 @@ class CellReading:
     results: list[CycleResult] = field(default_factory=list)
     counter: int | None = None  # the journal's cycle counter; None: no journal yet
     journal_bytes: int = 0  # journal.sqlite3 and its -wal
+    disk_free_bytes: int | None = None  # the state directory's file system: free to the service, and in all
+    disk_size_bytes: int | None = None
 
 
 HEALTH_OK, HEALTH_WARNING, HEALTH_ALARM = 0.0, 1.0, 2.0  # the calibration health level the plant publishes
@@ -82,6 +84,10 @@ class CellView:
         now = time.time() if now is None else now
         status = self._read_status()
         reading = CellReading(status, liveness(status, now).running, journal_bytes=self._journal_bytes())
+        with contextlib.suppress(OSError):
+            disk = os.statvfs(self.state_dir)
+            reading.disk_free_bytes = disk.f_bavail * disk.f_frsize
+            reading.disk_size_bytes = disk.f_blocks * disk.f_frsize
         journal = self._journal()
         if journal is None:
             return reading

@@ -72,6 +72,10 @@ class PlantMetrics:
                              ["device"], registry=r)
         self.journal_bytes = Gauge("monoguide_journal_bytes", "The journal's size on disk (with its WAL).",
                                    registry=r)
+        self.disk_free = Gauge("monoguide_journal_filesystem_avail_bytes", "Free space of the journal's file system "
+                               "(to the service's user).", registry=r)
+        self.disk_size = Gauge("monoguide_journal_filesystem_size_bytes", "Size of the journal's file system.",
+                               registry=r)
         self.journal_cycles = Gauge("monoguide_journal_cycle_counter", "The journal's cycle counter.", registry=r)
         self.calibration_age = Gauge("monoguide_calibration_age_seconds",
                                      "Since [calibration] date of the cell config (NaN: no date).", registry=r)
@@ -115,6 +119,8 @@ class PlantMetrics:
         for name, device in (status.devices if status else {}).items():
             self.devices.labels(device=name).set(1 if device.connected and reading.running else 0)
         self.journal_bytes.set(reading.journal_bytes)
+        self.disk_free.set(math.nan if reading.disk_free_bytes is None else reading.disk_free_bytes)
+        self.disk_size.set(math.nan if reading.disk_size_bytes is None else reading.disk_size_bytes)
         if reading.counter is not None:
             self.journal_cycles.set(reading.counter)
         date = self.calibration_date

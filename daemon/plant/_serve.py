@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import datetime
+import hashlib
 import logging
 import time
 from collections.abc import Callable
@@ -25,6 +26,7 @@ from monoguide.daemon.plant._metrics_http import MetricsEndpoint
 from monoguide.daemon.plant._opcua import PlantOpcUa
 from monoguide.daemon.plant._pki import ServerIdentity
 from monoguide.daemon.plant._refusals import Refusals
+from monoguide.daemon.plant._result_data import Configuration
 from monoguide.daemon.plant._settings import PlantSettings
 
 log = logging.getLogger(__name__)
@@ -42,16 +44,24 @@ class PlantEndpoints:
     identity: ServerIdentity
 
 
-def describe_cell(config: Any, last_results: int) -> CellDescription:
+def describe_cell(config: Any, last_results: int, config_path: Path | None = None) -> CellDescription:
     """The recipes (job number, part name) and the calibration date of a loaded cell config: every part type of
-    ``config.parts`` when the config has them, else its one part as job 1."""
+    ``config.parts`` when the config has them, else its one part as job 1; with ``config_path`` the file's SHA-256
+    and time of change (the configuration's id in OPC UA)."""
     parts = tuple(getattr(config, "parts", ()) or ())
     recipes = tuple(Recipe(int(p.job), str(p.name)) for p in parts)
     if not recipes:
         recipes = (Recipe(1, str(getattr(config.part, "name", None) or DEFAULT_PART_NAME)),)
     robot = getattr(config, "robot", None)
     simulated = config.camera.backend == "sim" or bool(robot is not None and robot.simulated)
-    return CellDescription(config.name, recipes, calibration_date(config.calibration), simulated, last_results)
+    date = (config.calibration or {}).get("date")
+    digest, modified = None, None
+    if config_path is not None:
+        digest = hashlib.sha256(config_path.read_bytes()).digest()
+        modified = config_path.stat().st_mtime
+    configuration = Configuration(str(config.name), None if date is None else str(date), digest)
+    return CellDescription(config.name, recipes, calibration_date(config.calibration), simulated, last_results,
+                           configuration, modified)
 
 
 def calibration_date(provenance: dict[str, Any] | None) -> float | None:
@@ -67,9 +77,11 @@ def calibration_date(provenance: dict[str, Any] | None) -> float | None:
 
 
 async def serve_plant(config: Any, settings: PlantSettings, state_dir: Path, stop: asyncio.Event,
-                      on_ready: Callable[[PlantEndpoints], None] | None = None) -> None:
-    """Serve until ``stop`` is set. Raises :class:`PlantListenFailed`, :class:`PlantCertificateError`."""
-    cell = describe_cell(config, settings.last_results)
+                      on_ready: Callable[[PlantEndpoints], None] | None = None,
+                      config_path: Path | None = None) -> None:
+    """Serve until ``stop`` is set. Raises :class:`PlantListenFailed`, :class:`PlantCertificateError`,
+    :class:`PlantNodeSetInvalid`."""
+    cell = describe_cell(config, settings.last_results, config_path)
     view = CellView(state_dir)
     refusals = Refusals(settings.limits.refusal_log_s)
     metrics = PlantMetrics(cell.calibration_date)

@@ -14,6 +14,10 @@ to hold the rules that asyncua leaves to the application:
   and in total; a session not activated within ``activation_timeout_s`` is closed; the session timeout a client asks
   for is held to ``session_timeout_s``.
 - **Discovery registration refused** (RegisterServer, RegisterServer2: ``BadServiceUnsupported``).
+- **Only the methods that read may be called**: ConditionRefresh and ConditionRefresh2 (of the session's own
+  subscriptions: another's is ``BadSubscriptionIdInvalid``) and the result-access methods of ``_result_access``;
+  every other method — those that change the machine's state (Halt, Reset, StartSingleJob, PrepareRecipe, ...) and
+  an alarm's Acknowledge, Confirm, Enable, Disable, AddComment — is answered ``BadUserAccessDenied``.
 
 Every refusal is counted by ``_refusals``, not logged one by one.
 """
@@ -46,6 +50,10 @@ REASONS = {
 }
 
 
+REFRESH_METHODS = (ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh),
+                   ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh2))
+
+
 class PlantServer(InternalServer):
     """asyncua's internal server with the plant's sessions."""
 
@@ -58,6 +66,8 @@ class PlantServer(InternalServer):
         self.max_pending_activation_seconds = limits.activation_timeout_s
         self.max_subscriptions = limits.subscriptions
         self.max_connections = limits.connections + 1  # one from the relay per client connection it admits
+        self.bind_condition_methods = True  # asyncua's ConditionRefresh (and 2) on ConditionType
+        self.callable_methods: set[ua.NodeId] = set(REFRESH_METHODS)
 
     def create_session(self, name: Any, user: User | None = None, external: bool = False) -> InternalSession:
         if not external:
@@ -151,6 +161,24 @@ class PlantSession(InternalSession):
             plant.refuse(self.client, "max_subscriptions_per_client reached", ua.StatusCodes.BadTooManySubscriptions)
         return await super().create_subscription(params, callback, request_callback)
 
+    async def call(self, params: list[ua.CallMethodRequest]) -> list[ua.CallMethodResult]:
+        """The methods that read; every other one refused, each in its own result."""
+        plant = self.plant
+        answers: list[ua.CallMethodResult | None] = []
+        allowed = []
+        for request in params:
+            refusal = None
+            if request.MethodId not in plant.callable_methods:
+                refusal = ua.StatusCodes.BadUserAccessDenied
+                plant.refusals.refuse("opcua", "a method that is not read-only", self.client)
+            elif request.MethodId in REFRESH_METHODS and not self._owns(request.InputArguments):
+                refusal = ua.StatusCodes.BadSubscriptionIdInvalid
+            answers.append(None if refusal is None else ua.CallMethodResult(StatusCode=ua.StatusCode(refusal)))
+            if refusal is None:
+                allowed.append(request)
+        results = iter(await super().call(allowed) if allowed else [])
+        return [answer if answer is not None else next(results) for answer in answers]
+
     async def close_session(self, delete_subs: bool = True) -> None:
         if self._deadline is not None:
             self._deadline.cancel()
@@ -158,6 +186,13 @@ class PlantSession(InternalSession):
             await super().close_session(delete_subs)
         finally:
             self.plant.forget(self)
+
+    def _owns(self, arguments: list[ua.Variant] | None) -> bool:
+        """Whether the subscription a ConditionRefresh names is one of this session's."""
+        if not arguments:
+            return False
+        subscription = self.plant.subscription_service.subscriptions.get(arguments[0].Value)
+        return subscription is not None and subscription.session_id == self.session_id
 
     def _expire(self) -> None:
         if self.state == SessionState.Created:  # never activated: closed, its place freed

@@ -29,7 +29,8 @@ _KEYS = ("opcua_host", "opcua_port", "metrics_host", "metrics_port", "last_resul
          "pki_dir", "trusted_certificates", "users", "metrics_web", "max_connections", "max_connections_per_client",
          "max_sessions", "max_sessions_per_client", "max_subscriptions", "max_subscriptions_per_client",
          "hello_timeout_s", "activation_timeout_s", "session_timeout_s", "login_failures", "login_window_s",
-         "metrics_max_connections", "metrics_max_connections_per_client", "metrics_timeout_s", "refusal_log_s")
+         "metrics_max_connections", "metrics_max_connections_per_client", "metrics_timeout_s", "refusal_log_s",
+         "machine_vision_nodeset")
 
 
 @dataclass(frozen=True)
@@ -79,6 +80,7 @@ class PlantSettings:
     users: tuple[PlantUser, ...] = ()
     limits: PlantLimits = PlantLimits()
     metrics_access: MetricsAccess = field(default_factory=MetricsAccess)
+    machine_vision_nodeset: Path | None = None  # Opc.Ua.MachineVision.NodeSet2.xml as published: needed to serve
 
     def pki(self, state_dir: Path) -> Path:
         return self.pki_dir if self.pki_dir is not None else state_dir / PKI_DIR
@@ -126,6 +128,7 @@ def _read(path: Path, t: Any) -> PlantSettings:
         users=_users(where, t.get("users", [])),
         limits=_limits(where, t),
         metrics_access=read_metrics_access(path, where, t.get("metrics_web", {})),
+        machine_vision_nodeset=_path(path, where, t, "machine_vision_nodeset", "a file"),
     )
     if out.anonymous and not is_loopback(opcua_host):
         raise ConfigError(f"{where}.anonymous = true with opcua_host = {opcua_host!r}: an anonymous identity is "
@@ -232,11 +235,11 @@ def _boolean(where: str, t: dict[str, Any], key: str, default: bool) -> bool:
     return value
 
 
-def _path(path: Path, where: str, t: dict[str, Any], key: str) -> Path | None:
+def _path(path: Path, where: str, t: dict[str, Any], key: str, what: str = "a directory") -> Path | None:
     if key not in t:
         return None
     value = t[key]
     if not isinstance(value, str) or not value.strip():
-        raise ConfigError(f"{where}.{key} = {value!r}: expected a directory")
+        raise ConfigError(f"{where}.{key} = {value!r}: expected {what}")
     found = Path(value)
     return found if found.is_absolute() else path.parent / found

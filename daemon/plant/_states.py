@@ -16,11 +16,31 @@ monoguide has no manual or continuous mode, so ``Initialized`` and ``ContinuousE
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 TOP_STATES = ("Preoperational", "Halted", "Error", "Operational")  # OPC 40100-1 VisionStateMachineType
 AUTOMATIC_STATES = ("Initialized", "Ready", "SingleExecution", "ContinuousExecution")  # ...AutomaticModeStateMachine
 NOT_RUNNING = "not running"  # the service state a reader shows when no service runs (status.json says so)
+
+# the transitions without a cause (``...Auto``) of the published machines, by the states they join: monoguide's states
+# change by themselves (the PLC's TRIGGER, a fault, FAULT_RESET), never by a method of the server
+TOP_TRANSITIONS = {
+    ("Halted", "Preoperational"): "HaltedToPreoperationalAuto",
+    ("Preoperational", "Halted"): "PreoperationalToHaltedAuto",
+    ("Preoperational", "Error"): "PreoperationalToErrorAuto",
+    ("Preoperational", "Operational"): "PreoperationalToOperationalAuto",
+    ("Operational", "Halted"): "OperationalToHaltedAuto",
+    ("Operational", "Preoperational"): "OperationalToPreoperationalAuto",
+    ("Operational", "Error"): "OperationalToErrorAuto",
+    ("Error", "Halted"): "ErrorToHaltedAuto",
+    ("Error", "Preoperational"): "ErrorToPreoperationalAuto",
+    ("Error", "Operational"): "ErrorToOperationalAuto",
+}
+AUTOMATIC_TRANSITIONS = {
+    ("Ready", "SingleExecution"): "ReadyToSingleExecutionAuto",
+    ("SingleExecution", "Ready"): "SingleExecutionToReadyAuto",
+}
 
 _EXECUTING = ("measuring", "solving", "checking", "writing", "reporting", "awaiting_ack")
 
@@ -44,3 +64,25 @@ def vision_state(service_state: str, running: bool) -> VisionState:
     if service_state in _EXECUTING:
         return VisionState("Operational", "SingleExecution")
     raise ValueError(f"service state {service_state!r} has no vision state")
+
+
+def transitions(source: str, target: str, table: dict[tuple[str, str], str]) -> list[tuple[str, str, str]]:
+    """The published transitions (name, from, to) that lead from ``source`` to ``target``, fewest first: the plant
+    reads the service's state every ``poll_s`` and may have missed one between (Halted to Operational is
+    HaltedToPreoperationalAuto, PreoperationalToOperationalAuto). Empty when they are the same state."""
+    if source == target:
+        return []
+    paths: deque[list[tuple[str, str, str]]] = deque([[]])
+    seen = {source}
+    while paths:
+        path = paths.popleft()
+        at = path[-1][2] if path else source
+        for (start, end), name in table.items():
+            if start != at or end in seen:
+                continue
+            step = [*path, (name, start, end)]
+            if end == target:
+                return step
+            seen.add(end)
+            paths.append(step)
+    raise ValueError(f"no transition from {source!r} to {target!r}")

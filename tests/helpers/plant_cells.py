@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from helpers.plant_clients import ClientIdentity
+from helpers.plant_npm import machine_vision_nodeset
 from monoguide.daemon.errors import CycleAborted
 from monoguide.daemon.plant import hash_password
 from monoguide.daemon.service import CycleEntry, DeviceStatus, Journal, ServiceStatus, write_status
@@ -91,7 +92,8 @@ def running_status(state_dir: Path, state: str = "idle", health: dict | None = N
 
 def plant_file(path: Path, host: str, port: int, extra: str = "") -> Path:
     path.write_text(f'[plant]\nopcua_host = "{host}"\nopcua_port = {port}\nmetrics_host = "{host}"\n'
-                    f'metrics_port = {port + 1}\npoll_s = 0.05\n{extra}\n'
+                    f'metrics_port = {port + 1}\npoll_s = 0.05\nmachine_vision_nodeset = "{machine_vision_nodeset()}"\n'
+                    f'{extra}\n'
                     f'[[plant.users]]\nname = "{USER}"\n'
                     f'password_hash = "{hash_password(PASSWORD, iterations=100_000)}"\n')
     return path

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import resource
 import socket
 import subprocess
@@ -24,7 +25,9 @@ from cryptography import x509
 from cryptography.hazmat.primitives import serialization
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
-NAMESPACE = "urn:monoguide:machinevision"
+NAMESPACE = "urn:monoguide"  # monoguide's own nodes and the instance's node ids
+MACHINE_VISION = "http://opcfoundation.org/UA/MachineVision"
+RESULT_READY_EVENT_TYPE = 1024  # the published ResultReadyEventType (namespace MachineVision)
 POLICIES = {"Basic256Sha256": SecurityPolicyBasic256Sha256, "Aes256Sha256RsaPss": SecurityPolicyAes256Sha256RsaPss}
 START_S = 60.0
 
@@ -109,18 +112,40 @@ def value(fields: dict[str, Any], name: str) -> Any:
 
 
 async def subscribe_results(client: Client) -> tuple[EventLog, Any]:
+    """Subscribed to the result events of VisionSystem: monoguide's subtype of the published ResultReadyEventType,
+    with both's fields."""
     idx = await client.get_namespace_index(NAMESPACE)
     vision_system = client.get_node(ua.NodeId("VisionSystem", idx))
-    event_type = await _event_type(client, idx)
+    event_type = await result_event_type(client)
     log = EventLog()
     subscription = await client.create_subscription(50, log)
     await subscription.subscribe_events(vision_system, event_type)
     return log, subscription
 
 
-async def _event_type(client: Client, idx: int) -> Any:
-    base = client.get_node(ua.NodeId(ua.ObjectIds.BaseEventType))
-    return await base.get_child(f"{idx}:ResultReadyEventType")
+async def result_event_type(client: Client) -> Any:
+    idx, mv = await client.get_namespace_index(NAMESPACE), await client.get_namespace_index(MACHINE_VISION)
+    published = client.get_node(ua.NodeId(RESULT_READY_EVENT_TYPE, mv))
+    return await published.get_child(f"{idx}:MonoguideResultReadyEventType")
+
+
+async def load_machine_vision_types(client: Client) -> int:
+    """The published structures as classes (ResultDataType, ...), for decoding; returns MachineVision's namespace
+    index. asyncua's client makes none for a structure that adds no field to its supertype (and so none for
+    ResultDataType, which has three of them): the plant's own registration fills them in, then the rest loads."""
+    from monoguide.daemon.plant._nodeset import register_structure_subtypes
+
+    mv = await client.get_namespace_index(MACHINE_VISION)
+    quiet = logging.getLogger("asyncua.common.structures104")
+    level = quiet.level
+    quiet.setLevel(logging.CRITICAL)  # the first load says, per structure it cannot make yet, what it misses
+    try:
+        await client.load_data_type_definitions()
+        await register_structure_subtypes(client, mv)
+        await client.load_data_type_definitions(overwrite_existing=True)
+    finally:
+        quiet.setLevel(level)
+    return mv
 
 
 def start_plant(config: Path, state_dir: Path, plant_config: Path | None, log: Path,

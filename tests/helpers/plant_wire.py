@@ -209,8 +209,8 @@ def _signature(identity: ClientIdentity, created: ua.CreateSessionResult) -> ua.
 
 async def _result_counter(client: Client) -> object:
     idx = await client.get_namespace_index(NAMESPACE)
-    read = ua.ReadParameters(NodesToRead=[ua.ReadValueId(NodeId=ua.NodeId("VisionSystem.ResultManagement.LastResultId",
-                                                                          idx), AttributeId=ua.AttributeIds.Value)])
+    read = ua.ReadParameters(NodesToRead=[ua.ReadValueId(NodeId=ua.NodeId("VisionSystem.Service.CycleCounter", idx),
+                                                             AttributeId=ua.AttributeIds.Value)])
     values = await client.uaclient.read(read)
     return values[0].Value.Value
 
@@ -218,3 +218,29 @@ async def _result_counter(client: Client) -> object:
 def _refusal(error: BaseException) -> str:
     """A status code's name (``BadUserAccessDenied``), or what ended the wait (``TimeoutError``, ...)."""
     return type(error).__name__
+
+
+def node_probe(probe: str, url: str, identity: ClientIdentity, user: str, password: str,
+               timeout_s: float = 60.0) -> Answer:
+    """A probe of the second stack (node-opcua's client, tests/helpers/plant_node/probe.mjs): ``results`` (bind by
+    the published browse names, read Result01's JobId, GetResultById; refused for an untrusted certificate) and
+    ``wrong-password``. Its answer in the shape of this module's."""
+    import json
+    import shutil
+    import subprocess
+
+    from cryptography.hazmat.primitives.serialization import Encoding
+
+    from helpers.plant_npm import TOOLS, npm_tools
+
+    folder = npm_tools()
+    pem = identity.certificate.with_suffix(".pem")
+    pem.write_bytes(x509.load_der_x509_certificate(identity.certificate.read_bytes()).public_bytes(Encoding.PEM))
+    script = shutil.copy(TOOLS / "probe.mjs", folder / "probe.mjs")  # beside node_modules: ES modules resolve there
+    done = subprocess.run(["node", str(script), probe, url, str(pem), str(identity.key), user, password],
+                          cwd=folder, capture_output=True, text=True, timeout=timeout_s,
+                          env={"PATH": "/usr/local/bin:/usr/bin:/bin", "HOME": str(folder)})
+    lines = [line for line in done.stdout.splitlines() if line.startswith("{")]
+    assert lines, f"node probe {probe}: no answer ({done.returncode}): {done.stdout[-2000:]} {done.stderr[-2000:]}"
+    said = json.loads(lines[-1])
+    return Answer(said["refused"], said["step"], said["value"])

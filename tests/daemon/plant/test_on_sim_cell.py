@@ -15,7 +15,16 @@ import pytest
 from asyncua import ua
 from helpers.cell_configs import cell_config
 from helpers.plant_cells import PASSWORD, USER, plant_file
-from helpers.plant_clients import NAMESPACE, client_identity, connected, start_plant, subscribe_results, trust, value
+from helpers.plant_clients import (
+    NAMESPACE,
+    client_identity,
+    connected,
+    load_machine_vision_types,
+    start_plant,
+    subscribe_results,
+    trust,
+    value,
+)
 from helpers.sim_processes import keep_reading, start_sim_cell, stop
 
 from monoguide.daemon.service import Journal
@@ -39,6 +48,7 @@ def test_events_and_state_while_the_service_runs(tmp_path: Path) -> None:
             nonlocal sim
             client = await connected(line.split()[2], client_id, user=USER, password=PASSWORD)
             try:
+                await load_machine_vision_types(client)
                 log, _ = await subscribe_results(client)
                 idx = await client.get_namespace_index(NAMESPACE)
                 machine = client.get_node(ua.NodeId("VisionSystem.VisionStateMachine", idx))
@@ -77,7 +87,7 @@ def test_events_and_state_while_the_service_runs(tmp_path: Path) -> None:
     assert {"Operational", "Halted"} <= seen, seen
     with Journal(state_dir, read_only=True) as journal:
         rows = journal.last_cycles(CYCLES)[::-1]
-    assert [value(fields, "ResultId") for _, fields in events] == [row.number for row in rows]
+    assert [value(fields, "ResultId").Id for _, fields in events] == [str(row.number) for row in rows]
     for (arrived, fields), row in zip(events, rows, strict=True):
         assert value(fields, "Status") == row.status == "ok", row.error_message
         assert value(fields, "PartTag") == row.part_tag and value(fields, "Job") == row.job

@@ -19,6 +19,7 @@ from helpers.plant_clients import (
     NAMESPACE,
     client_identity,
     connected,
+    load_machine_vision_types,
     start_plant,
     subscribe_results,
     trust,
@@ -53,18 +54,20 @@ def test_the_vision_system_shows_the_journal(plant_cell: PlantCell) -> None:
         client = await connected(plant_cell.url, plant_cell.client, user=USER, password=PASSWORD)
         try:
             idx = await client.get_namespace_index(NAMESPACE)
+            mv = await load_machine_vision_types(client)
             objects = [(await n.read_browse_name()).Name for n in await client.nodes.objects.get_children()]
             assert "VisionSystem" in objects
             vs = _node(client, idx, "VisionSystem")
-            children = {(await n.read_browse_name()).Name for n in await vs.get_children()}  # type: ignore[attr-defined]
-            assert {"VisionStateMachine", "RecipeManagement", "ResultManagement", "Devices"} <= children
+            children = {(await n.read_browse_name()).to_string() for n in await vs.get_children()}  # type: ignore[attr-defined]
+            assert {f"{mv}:VisionStateMachine", f"{mv}:RecipeManagement", f"{mv}:ResultManagement",
+                    f"{idx}:Devices", f"{idx}:CalibrationHealth"} <= children
             type_node = await vs.read_type_definition()  # type: ignore[attr-defined]
-            assert (await client.get_node(type_node).read_browse_name()).Name == "VisionSystemType"
+            assert type_node == ua.NodeId(1003, mv)  # the published VisionSystemType
             # the status file says idle: Operational / Ready
             machine = _node(client, idx, "VisionSystem.VisionStateMachine")
             current = await machine.get_child("0:CurrentState")  # type: ignore[attr-defined]
             assert (await current.read_value()).Text == "Operational"
-            automatic = await (await machine.get_child(f"{idx}:AutomaticModeStateMachine")).get_child(  # type: ignore[attr-defined]
+            automatic = await (await machine.get_child(f"{mv}:AutomaticModeStateMachine")).get_child(  # type: ignore[attr-defined]
                 "0:CurrentState")
             assert (await automatic.read_value()).Text == "Ready"
             # recipes: the config's part types by job number (its one [part] as job 1)
@@ -73,12 +76,11 @@ def test_the_vision_system_shows_the_journal(plant_cell: PlantCell) -> None:
                 assert await _read(client, idx, f"VisionSystem.RecipeManagement.Recipes.Job{job}.PartName") == name
             # the newest results, Result01 the newest, against the seeded rows
             newest = len(plant_cell.seeded)
-            assert await _read(client, idx, "VisionSystem.ResultManagement.LastResultId") == newest
             for slot in range(1, 11):
                 number = newest - slot + 1
                 entry = plant_cell.seeded[number - 1]
                 base = f"VisionSystem.ResultManagement.Results.Result{slot:02d}"
-                assert await _read(client, idx, f"{base}.ResultId") == number
+                assert (await _read(client, idx, f"{base}.ResultId")).Id == str(number)  # type: ignore[attr-defined]
                 assert await _read(client, idx, f"{base}.PartTag") == entry.part_tag
                 offset_node = _node(client, idx, f"{base}.BaseOffset")
                 assert await offset_node.read_value_rank() == 1  # type: ignore[attr-defined]
@@ -108,6 +110,7 @@ def test_a_result_event_per_committed_cycle(plant_cell: PlantCell) -> None:
     async def run() -> None:
         client = await connected(plant_cell.url, plant_cell.client, user=USER, password=PASSWORD)
         try:
+            await load_machine_vision_types(client)
             log, _ = await subscribe_results(client)
             await asyncio.sleep(0.5)
             new = seeded_entries(8, time.time())[4:8]  # one failed (index 7), three good
@@ -117,12 +120,14 @@ def test_a_result_event_per_committed_cycle(plant_cell: PlantCell) -> None:
                     numbers.append(journal.commit_cycle(entry))
                     await asyncio.sleep(0.05)
             await log.wait_for(len(new), 10.0)
-            assert [value(e, "ResultId") for _, e in log.events] == numbers
+            assert [value(e, "ResultId").Id for _, e in log.events] == [str(n) for n in numbers]
+            assert [value(e, "JobId").Id for _, e in log.events] == [str(n) for n in numbers]
             for (arrived, fields), entry in zip(log.events, new, strict=True):
                 assert value(fields, "PartTag") == entry.part_tag
                 assert value(fields, "Job") == 1
                 if entry.error is None:
                     assert value(fields, "Status") == "ok" and value(fields, "ResultState") == 1
+                    assert value(fields, "ResultContent")[0].Value == pytest.approx(entry.result["base_offset_xyzabc"])
                     assert value(fields, "BaseOffset") == pytest.approx(entry.result["base_offset_xyzabc"], rel=1e-7)
                     assert value(fields, "RmsPx") == pytest.approx(entry.result["rms_px"])
                 else:
@@ -179,7 +184,7 @@ def test_an_x509_identity_from_the_trust_list_is_let_in(plant_cell: PlantCell) -
         client = await connected(plant_cell.url, plant_cell.client, x509_identity=True)
         try:
             idx = await client.get_namespace_index(NAMESPACE)
-            assert await _read(client, idx, "VisionSystem.ResultManagement.LastResultId") >= 1
+            assert await _read(client, idx, "VisionSystem.Service.CycleCounter") >= 1
         finally:
             await client.disconnect()
 
@@ -291,3 +296,24 @@ def test_no_client_can_register_a_server(plant_cell: PlantCell) -> None:
             client.disconnect_socket()
 
     asyncio.run(run())
+
+
+@pytest.mark.parametrize(("probe", "who", "refusal"), [
+    ("results", "client", None),
+    ("wrong-password", "client", "BadUserAccessDenied"),
+    ("results", "stranger", "BadCertificateUntrusted"),
+])
+def test_a_second_stack_binds_reads_and_is_refused_alike(plant_cell: PlantCell, probe: str, who: str,
+                                                         refusal: str | None) -> None:
+    """node-opcua's client (not asyncua): by the published browse names it reads the state's StateNumber and
+    Result01's JobId and fetches that result with GetResultById; refused as asyncua's client is."""
+    from helpers.plant_wire import node_probe
+
+    identity = plant_cell.client if who == "client" else plant_cell.stranger
+    answer = node_probe(probe, plant_cell.url, identity, USER, PASSWORD)
+    assert answer.refused == refusal, answer
+    if refusal is None:
+        with Journal(plant_cell.state_dir, read_only=True) as journal:
+            newest = str(journal.cycle_counter())
+        assert answer.value == {"stateNumber": 4, "jobId": newest, "callStatus": "Good", "resultId": newest,
+                                "jobOfResult": newest, "error": 0}  # 4: Operational's StateNumber as published
