@@ -37,6 +37,7 @@ def _tool(name: str) -> str:
     return found
 
 
+@pytest.mark.prometheus
 def test_the_shipped_rules_pass_promtool_check_and_their_unit_tests() -> None:
     rules = config_file(RULES)
     assert rules.is_file() and config_file(DASHBOARD).is_file()
@@ -62,6 +63,7 @@ def test_the_dashboard_asks_only_for_what_is_served_or_recorded() -> None:
     assert all('instance=~"$cell"' in t["expr"] for p in dashboard["panels"] for t in p["targets"])
 
 
+@pytest.mark.prometheus
 def test_a_real_prometheus_fires_the_calibration_alert_for_that_cell_only(tmp_path: Path) -> None:
     prometheus = _tool("prometheus")
     beats, plants = [], []
